@@ -1,0 +1,5 @@
+import sys
+
+from crowdcam.cli import main
+
+sys.exit(main())

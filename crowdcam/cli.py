@@ -1,0 +1,261 @@
+"""The `crowdcam` command: detect, eval, bench, make-samples.
+
+Errors a user can cause (missing or unreadable input, no usable geometry, bad options) are
+reported as one line `crowdcam: error: ...` with exit code 2; warnings go to stderr and the run
+goes on. Nothing else parses argv.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+SAMPLE_SETS = Path(__file__).resolve().parents[1] / "sample_sets"
+EXIT_USAGE = 2
+
+
+class CliError(Exception):
+    pass
+
+
+# ----------------------------------------------------------------------------- output helpers
+class Reporter:
+    """Progress bars and messages on stderr; silent with --quiet (errors still print)."""
+
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+        self._bar = None
+        self._stage = None
+
+    def progress(self, stage: str, done: int, total: int) -> None:
+        if self.quiet or total <= 0:
+            return
+        from tqdm import tqdm
+        if stage != self._stage:
+            self.close()
+            self._stage = stage
+            self._bar = tqdm(total=total, desc=f"{stage:>9}", unit="pair" if stage != "features" else "img",
+                             file=sys.stderr, leave=False, dynamic_ncols=True)
+        self._bar.n = done
+        self._bar.refresh()
+        if done >= total:
+            self.close()
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+            self._stage = None
+
+    def warn(self, msg: str) -> None:
+        self.close()
+        print(f"crowdcam: warning: {msg}", file=sys.stderr)
+
+    def info(self, msg: str) -> None:
+        if not self.quiet:
+            self.close()
+            print(msg, file=sys.stderr)
+
+
+def _params(args):
+    from pipeline.params import get_preset
+    try:
+        p = get_preset(args.preset)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    if getattr(args, "max_side", None):
+        if args.max_side < 64 or args.max_side > 4096:
+            raise CliError(f"--max-side must be between 64 and 4096 (got {args.max_side})")
+        p = p.replace(max_side=args.max_side)
+    return p
+
+
+def _cache(args):
+    from pipeline.cache import PairCache, default_cache_dir
+    if getattr(args, "no_cache", False):
+        return PairCache(None)
+    return PairCache(Path(args.cache_dir) if getattr(args, "cache_dir", None) else default_cache_dir())
+
+
+def _table_row(name: str, score) -> str:
+    return (f"{name:<20} {score.n_images:>3} images  Jaccard opt. per image {score.mean_opt_image:.2f} ± "
+            f"{score.std_opt_image:.2f}   opt. per set {score.mean_opt_set:.2f} ± {score.std_opt_set:.2f} "
+            f"(threshold {score.set_threshold:.3f})")
+
+
+# ----------------------------------------------------------------------------- commands
+def cmd_detect(args) -> int:
+    from pipeline.loading import is_inside, load_set, load_gt
+    from pipeline.output import write_outputs, to_original
+    from pipeline.run import detect_set
+    from pipeline.evaluate import score_set
+
+    rep = Reporter(args.quiet)
+    params = _params(args)
+    set_dir = Path(args.set)
+    photo_set = load_set(set_dir, params.max_side, warn=rep.warn)
+    out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name
+    if is_inside(out, set_dir):
+        raise CliError(f"{out}: the output folder must not be inside the input folder {set_dir}")
+    threshold = params.aggregate.threshold if args.threshold is None else args.threshold
+    if not 0.0 <= threshold <= 1.0:
+        raise CliError(f"--threshold must be in [0, 1] (got {threshold})")
+    rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, "
+             f"max side {params.max_side}")
+    t0 = time.perf_counter()
+    res = detect_set(photo_set, params, _cache(args), workers=args.workers, progress=rep.progress, warn=rep.warn)
+    rep.close()
+    res.timings["total_s"] = time.perf_counter() - t0
+    extra = {}
+    if photo_set.gt_dir is not None:
+        probs, gts = {}, {}
+        for p, d in zip(photo_set.photos, res.dynamic):
+            g = load_gt(photo_set.gt_dir, p.stem, p.orig_size)
+            if d is not None and g is not None:
+                probs[p.stem], gts[p.stem] = to_original(d, p), g
+        if probs:
+            score = score_set(probs, gts)
+            extra["evaluation"] = score.to_dict()
+            rep.info(_table_row(photo_set.name, score))
+    write_outputs(res, out, threshold, extra)
+    n_ok = sum(d is not None for d in res.dynamic)
+    n_pairs = len(res.pair_results)
+    rep.info(f"wrote {n_ok} maps to {out} ({n_pairs} ordered pairs, "
+             f"{res.timings['total_s']:.1f} s, {res.cache_hits} cached)")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    import numpy as np
+    from pipeline.cache import atomic_write_bytes
+    from pipeline.evaluate import score_set, static_false_positive_rate
+    from pipeline.loading import InputError, load_gt
+
+    out = Path(args.dir)
+    summary_path = out / "summary.json"
+    if not summary_path.exists():
+        raise CliError(f"{out}: not a crowdcam output folder (no summary.json)")
+    try:
+        summary = json.loads(summary_path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise CliError(f"{summary_path}: unreadable ({e})") from None
+    gt_dir = Path(args.gt) if args.gt else Path(summary["input"]) / "gt"
+    if not gt_dir.is_dir():
+        raise CliError(f"{gt_dir}: no ground-truth folder (give one with --gt)")
+    probs, gts = {}, {}
+    for im in summary["images"]:
+        mp = out / "maps" / f"{im['stem']}.npy"
+        if not im.get("has_map") or not mp.exists():
+            continue
+        g = load_gt(gt_dir, im["stem"], tuple(im["size"]))
+        if g is None:
+            continue
+        probs[im["stem"]], gts[im["stem"]] = np.load(mp), g
+    if not probs:
+        raise CliError(f"{gt_dir}: no ground-truth mask matches a map in {out}")
+    score = score_set(probs, gts)
+    fp = static_false_positive_rate(probs, gts, 0.5)
+    print(_table_row(summary["set"], score))
+    print(f"{'':<20} static pixels above 0.5: {fp:.1%}")
+    result = {"set": summary["set"], "gt": str(gt_dir), **score.to_dict(), "static_fp_rate_at_0.5": fp}
+    atomic_write_bytes(out / "eval.json", json.dumps(result, indent=1).encode())
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from crowdcam.bench import run_bench
+    sets = [Path(s) for s in args.sets] or sorted(p for p in SAMPLE_SETS.iterdir() if (p / "images").is_dir())
+    if not sets:
+        raise CliError(f"{SAMPLE_SETS}: no sample sets found")
+    for s in sets:
+        if not s.is_dir():
+            raise CliError(f"{s}: no such folder")
+    presets = args.preset or ["paper"]
+    out = Path(args.json) if args.json else Path.cwd() / "crowdcam-out" / "bench.json"
+    return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet)
+
+
+def cmd_make_samples(args) -> int:
+    from crowdcam.scenegen import SETS, write_set
+    names = args.only or list(SETS)
+    for n in names:
+        if n not in SETS:
+            raise CliError(f"unknown sample set {n!r}; choose from {', '.join(SETS)}")
+    out = Path(args.out)
+    for n in names:
+        t = time.perf_counter()
+        write_set(SETS[n], out / n, scale=args.scale)
+        print(f"{out / n}: {SETS[n].n_cameras} photos in {time.perf_counter() - t:.1f} s", file=sys.stderr)
+    return 0
+
+
+# ----------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    from pipeline.params import PRESETS
+    ap = argparse.ArgumentParser(prog="crowdcam", description="Detect moving regions in CrowdCam photo sets.")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    def common(p, cache=True):
+        p.add_argument("--preset", default="paper", choices=sorted(PRESETS), help="parameter preset (default: paper)")
+        p.add_argument("--max-side", type=int, default=None, help="working resolution, longer side in px (default 640)")
+        p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+        p.add_argument("--quiet", action="store_true", help="no progress output")
+        if cache:
+            p.add_argument("--cache-dir", default=None, help="per-pair cache (default ~/.cache/crowdcam or $CROWDCAM_CACHE)")
+            p.add_argument("--no-cache", action="store_true", help="neither read nor write the cache")
+
+    d = sub.add_parser("detect", help="compute dynamic-probability maps and masks for a photo set")
+    d.add_argument("set", help="folder of photos, or folder with images/ (and optional gt/)")
+    d.add_argument("--out", default=None, help="output folder (default ./crowdcam-out/<set name>)")
+    d.add_argument("--threshold", type=float, default=None, help="mask threshold on P_dynamic (default 0.5)")
+    common(d)
+    d.set_defaults(fn=cmd_detect)
+
+    e = sub.add_parser("eval", help="Jaccard of a detect output against ground truth (Table 1 row)")
+    e.add_argument("dir", help="output folder of `crowdcam detect`")
+    e.add_argument("--gt", default=None, help="ground-truth folder (default: the input set's gt/)")
+    e.set_defaults(fn=cmd_eval)
+
+    b = sub.add_parser("bench", help="time and score the bundled sample sets (or the given sets)")
+    b.add_argument("sets", nargs="*", help="set folders (default: all bundled sample sets)")
+    b.add_argument("--preset", action="append", choices=sorted(PRESETS), help="repeat to compare presets")
+    b.add_argument("--max-side", type=int, default=640)
+    b.add_argument("--workers", type=int, default=None)
+    b.add_argument("--json", default=None, help="where to write the JSON report (default ./crowdcam-out/bench.json)")
+    b.add_argument("--quiet", action="store_true")
+    b.set_defaults(fn=cmd_bench)
+
+    m = sub.add_parser("make-samples", help="render the bundled synthetic sample sets")
+    m.add_argument("--out", default=str(SAMPLE_SETS))
+    m.add_argument("--only", action="append", help="render only this set (repeatable)")
+    m.add_argument("--scale", type=float, default=1.0, help="image size factor (tests use small sets)")
+    m.set_defaults(fn=cmd_make_samples)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    from pipeline.loading import InputError
+    try:
+        return args.fn(args)
+    except (InputError, CliError) as e:
+        print(f"crowdcam: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("crowdcam: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print("crowdcam: error: out of memory (try a smaller --max-side)", file=sys.stderr)
+        return 1
+    except OSError as e:
+        print(f"crowdcam: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""Patch descriptors (§3.1.2 and "Implementation details"): HOG compared by cosine similarity and a
+2-D hue/saturation histogram (10 x 10 bins) compared by intersection over union.
+
+Descriptors are computed in the strip frame (see patches.py): every sample of a strip carries its
+gradient orientation relative to the strip's along direction (so HOG is measured relative to the
+epipolar lines, in both images alike) and its colour bin. Window descriptors are differences of
+cumulative sums along the strip, so any window, at any position and width, costs O(1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+REMAP_BLOCK = 4096    # cv2.remap maps must stay below 32767 per side: sample in blocks of columns
+
+
+@dataclass(frozen=True)
+class ImageChannels:
+    """Per-image inputs of the descriptors at working resolution.
+
+    gx, gy: (h, w) float32 image gradients of the grey image;
+    color_bin: (h, w) uint8 in [0, bins^2): hue bin * bins + saturation bin.
+    """
+
+    gx: np.ndarray
+    gy: np.ndarray
+    color_bin: np.ndarray
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.gx.shape
+
+
+def image_channels(rgb: np.ndarray, hist_bins: int) -> ImageChannels:
+    """(h, w, 3) uint8 RGB -> gradients and hue/saturation bins."""
+    gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
+    gray = cv2.GaussianBlur(gray, (0, 0), 0.8)
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)      # H in [0, 180), S in [0, 256)
+    hb = (hsv[..., 0].astype(np.int32) * hist_bins) // 180
+    sb = (hsv[..., 1].astype(np.int32) * hist_bins) // 256
+    return ImageChannels(gx, gy, np.minimum(hb, hist_bins - 1).astype(np.uint8) * hist_bins
+                         + np.minimum(sb, hist_bins - 1).astype(np.uint8))
+
+
+def _remap(img: np.ndarray, xy: np.ndarray, interp: int) -> np.ndarray:
+    """Sample img at points xy (..., 2) (pixel coordinates); returns (...) values."""
+    shape = xy.shape[:-1]
+    flat = xy.reshape(-1, 2).astype(np.float32)
+    n = len(flat)
+    pad = (-n) % REMAP_BLOCK
+    m = np.concatenate([flat, np.full((pad, 2), -10.0, np.float32)]).reshape(-1, REMAP_BLOCK, 2)
+    out = cv2.remap(img, m[..., 0], m[..., 1], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.reshape(-1)[:n].reshape(shape)
+
+
+@dataclass(frozen=True)
+class StripFeatures:
+    """Cumulative per-sample features of strips concatenated along one axis (N samples).
+
+    hog_cum: (cells_across, N + 1, bins) float32, cumulative orientation histograms per cell row;
+    color_cum: (N + 1, hist_bins^2) float32, cumulative colour-bin counts over all rows;
+    valid_cum: (N + 1,) float32, cumulative count of in-image samples (over rows).
+    """
+
+    hog_cum: np.ndarray
+    color_cum: np.ndarray
+    valid_cum: np.ndarray
+    rows: int
+
+
+def strip_features(ch: ImageChannels, xy: np.ndarray, along: np.ndarray, across: np.ndarray,
+                   cells_across: int, hog_bins: int, hist_bins: int) -> StripFeatures:
+    """Features of strip samples.
+
+    xy: (rows, N, 2) sample positions; along, across: (N, 2) unit vectors of the strip frame at
+    each along index (orientation is measured from `along` towards `across`, unsigned).
+    """
+    rows, n = xy.shape[:2]
+    h, w = ch.size
+    valid = ((xy[..., 0] >= -0.5) & (xy[..., 0] <= w - 0.5) & (xy[..., 1] >= -0.5) & (xy[..., 1] <= h - 0.5))
+    gx = _remap(ch.gx, xy, cv2.INTER_LINEAR)
+    gy = _remap(ch.gy, xy, cv2.INTER_LINEAR)
+    ga = gx * along[None, :, 0] + gy * along[None, :, 1]
+    gc = gx * across[None, :, 0] + gy * across[None, :, 1]
+    mag = np.sqrt(ga * ga + gc * gc) * valid
+    ori = np.mod(np.arctan2(gc, ga), np.pi) * (hog_bins / np.pi) - 0.5        # bin centres at integers
+    b0 = np.floor(ori)
+    frac = (ori - b0).astype(np.float32)
+    b0 = np.mod(b0.astype(np.int64), hog_bins)
+    b1 = np.mod(b0 + 1, hog_bins)
+    # Linear interpolation into the two nearest orientation bins, summed per cell row.
+    cell_of_row = (np.arange(rows) * cells_across) // rows
+    # Scatter-add by bincount over flattened (cell row, along, bin) indices.
+    base = (cell_of_row[:, None] * n + np.arange(n)[None, :]) * hog_bins          # (rows, n)
+    size = cells_across * n * hog_bins
+    hog = (np.bincount((base + b0).ravel(), (mag * (1 - frac)).ravel(), minlength=size)
+           + np.bincount((base + b1).ravel(), (mag * frac).ravel(), minlength=size))
+    hog = hog.astype(np.float32).reshape(cells_across, n, hog_bins)
+    nb = hist_bins * hist_bins
+    cb = _remap(ch.color_bin, xy, cv2.INTER_NEAREST).astype(np.int64)
+    cidx = (np.arange(n)[None, :] * nb + cb)[valid]
+    color = np.bincount(cidx, minlength=n * nb).astype(np.float32).reshape(n, nb)
+    z3 = np.zeros((cells_across, 1, hog_bins), np.float32)
+    return StripFeatures(
+        hog_cum=np.concatenate([z3, np.cumsum(hog, axis=1, dtype=np.float32)], axis=1),
+        color_cum=np.concatenate([np.zeros((1, color.shape[1]), np.float32), np.cumsum(color, axis=0, dtype=np.float32)]),
+        valid_cum=np.concatenate([[0.0], np.cumsum(valid.sum(axis=0), dtype=np.float64)]).astype(np.float32),
+        rows=rows)
+
+
+@dataclass(frozen=True)
+class WindowDescriptors:
+    """Descriptors of windows [start, start + length) of the flat along axis.
+
+    hog: (P, cells_across * cells_along * bins) float32, unit L2 norm (or zero);
+    color: (P, hist_bins^2) float32, sums to 1 (or zero); valid: (P,) float32 share of in-image samples.
+    """
+
+    hog: np.ndarray
+    color: np.ndarray
+    valid: np.ndarray
+
+
+def window_descriptors(sf: StripFeatures, start: np.ndarray, length: np.ndarray, cells_along: int,
+                       hog_floor: float = 0.0) -> WindowDescriptors:
+    """Descriptors of windows; hog_floor is a gradient magnitude per sample spread evenly over the
+    orientation bins before normalisation (see DescriptorParams.hog_floor)."""
+    start = start.astype(np.int64)
+    length = length.astype(np.int64)
+    # Cell boundaries along the window; HOG cells are (cell row) x (cell along).
+    bounds = start[:, None] + (length[:, None] * np.arange(cells_along + 1)[None]) // cells_along   # (P, ca+1)
+    cum = sf.hog_cum[:, bounds]                                    # (cr, P, ca+1, bins)
+    cells = cum[:, :, 1:] - cum[:, :, :-1]                         # (cr, P, ca, bins)
+    if hog_floor > 0:
+        n_in_cell = (bounds[:, 1:] - bounds[:, :-1]) * (sf.rows / cum.shape[0])      # (P, ca) samples
+        cells = cells + (hog_floor / cells.shape[-1]) * n_in_cell[None, :, :, None].astype(np.float32)
+    hog = np.transpose(cells, (1, 0, 2, 3)).reshape(len(start), -1)
+    hog /= np.linalg.norm(hog, axis=1, keepdims=True) + 1e-6
+    color = sf.color_cum[start + length] - sf.color_cum[start]
+    color /= np.maximum(color.sum(axis=1, keepdims=True), 1e-6)
+    valid = (sf.valid_cum[start + length] - sf.valid_cum[start]) / (length * sf.rows)
+    return WindowDescriptors(hog.astype(np.float32), color.astype(np.float32), valid.astype(np.float32))
+
+
+def hog_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cosine similarity of unit-norm HOGs: (..., P, D) x (..., Q, D) -> (..., P, Q) in [0, 1]."""
+    return np.matmul(a, np.swapaxes(b, -1, -2))
+
+
+def color_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection over union of normalised histograms: (P, B) x (Q, B) -> (P, Q) in [0, 1].
+
+    For histograms that each sum to 1, sum(max) = 2 - sum(min), so IoU = I / (2 - I).
+    """
+    inter = np.minimum(a[:, None, :], b[None, :, :]).sum(axis=-1)
+    return inter / np.maximum(2.0 - inter, 1e-6)

@@ -1,0 +1,80 @@
+"""Epipolar geometry: pure functions on fundamental matrices and points.
+
+Convention everywhere: `x_support^T F x_reference = 0`, points as pixel coordinates with
+(0, 0) at the centre of the top-left pixel (OpenCV's convention).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def to_homogeneous(pts: np.ndarray) -> np.ndarray:
+    """(N, 2) -> (N, 3) float64 with a trailing 1."""
+    pts = np.asarray(pts, dtype=np.float64)
+    return np.concatenate([pts, np.ones((*pts.shape[:-1], 1))], axis=-1)
+
+
+def epipoles(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Homogeneous epipoles (e_ref, e_sup), unit norm: F e_ref = 0 and F^T e_sup = 0.
+
+    e_ref is the image of the support camera's centre in the reference image.
+    """
+    _, _, vt = np.linalg.svd(F)
+    e_ref = vt[-1]
+    _, _, vt2 = np.linalg.svd(F.T)
+    e_sup = vt2[-1]
+    return e_ref / np.linalg.norm(e_ref), e_sup / np.linalg.norm(e_sup)
+
+
+def epipolar_lines(F: np.ndarray, pts_ref: np.ndarray) -> np.ndarray:
+    """Lines in the support image for reference points.
+
+    pts_ref: (N, 2) float. Returns (N, 3) float64 lines (a, b, c) with a^2 + b^2 = 1, so that
+    a*x + b*y + c is the signed distance of support pixel (x, y) to the line.
+    """
+    lines = to_homogeneous(pts_ref) @ F.T
+    return lines / np.linalg.norm(lines[:, :2], axis=1, keepdims=True)
+
+
+def symmetric_epipolar_distance(F: np.ndarray, pts_ref: np.ndarray, pts_sup: np.ndarray) -> np.ndarray:
+    """(N,) float64: mean of the distances of each point to the other's epipolar line."""
+    xr, xs = to_homogeneous(pts_ref), to_homogeneous(pts_sup)
+    l_s = xr @ F.T          # lines in support
+    l_r = xs @ F            # lines in reference
+    num = np.abs(np.sum(xs * l_s, axis=1))
+    return 0.5 * (num / np.linalg.norm(l_s[:, :2], axis=1) + num / np.linalg.norm(l_r[:, :2], axis=1))
+
+
+def scale_matrix(scale: float) -> np.ndarray:
+    """3x3 map from original to working pixel coordinates for a resize by `scale`.
+
+    With pixel centres at integers, x_work = (x_orig + 0.5) * scale - 0.5.
+    """
+    return np.array([[scale, 0, 0.5 * scale - 0.5], [0, scale, 0.5 * scale - 0.5], [0, 0, 1.0]])
+
+
+def fundamental_to_original(F_work: np.ndarray, scale_ref: float, scale_sup: float) -> np.ndarray:
+    """F in working coordinates -> F in original-resolution coordinates (same convention), unit norm."""
+    F = scale_matrix(scale_sup).T @ F_work @ scale_matrix(scale_ref)
+    return F / np.linalg.norm(F)
+
+
+def fundamental_from_cameras(P_ref: np.ndarray, P_sup: np.ndarray) -> np.ndarray:
+    """F with x_sup^T F x_ref = 0 from two 3x4 projection matrices (HZ eq. 9.1)."""
+    _, _, vt = np.linalg.svd(P_ref)
+    C = vt[-1]                                  # camera centre of the reference, P_ref C = 0
+    e_sup = P_sup @ C
+    ex = np.array([[0, -e_sup[2], e_sup[1]], [e_sup[2], 0, -e_sup[0]], [-e_sup[1], e_sup[0], 0]])
+    F = ex @ P_sup @ np.linalg.pinv(P_ref)
+    return F / np.linalg.norm(F)
+
+
+def convex_hull_share(pts: np.ndarray, size: tuple[int, int]) -> float:
+    """Area of the convex hull of (N, 2) points over the image area (h, w)."""
+    import cv2
+
+    if len(pts) < 3:
+        return 0.0
+    hull = cv2.convexHull(np.asarray(pts, dtype=np.float32))
+    return float(cv2.contourArea(hull)) / float(size[0] * size[1])

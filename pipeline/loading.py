@@ -1,0 +1,198 @@
+"""Load a photo set: a folder of images, or a folder holding `images/` and optionally `gt/`.
+
+Photos are decoded with EXIF orientation applied, converted to 8-bit RGB (grayscale, alpha and
+16-bit inputs are accepted) and resized so that their longer side is at most `max_side`.
+Maps are computed at that working resolution and returned at each photo's original size.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp"}
+MAX_PIXELS = 120_000_000          # refuse larger photos (a 6000x4000 phone photo is 24 MP)
+MAX_FILE_BYTES = 400 * 1024 * 1024
+
+
+class InputError(Exception):
+    """A problem with the user's input, reported as one line naming the file."""
+
+
+@dataclass(frozen=True)
+class Photo:
+    """One photo of the set at working resolution.
+
+    rgb: (h, w, 3) uint8, the photo resized so that max(h, w) <= max_side.
+    orig_size: (H, W) of the decoded, EXIF-oriented original.
+    scale: working / original size factor (<= 1).
+    key: content hash of the file plus the working size, used by the cache.
+    """
+
+    name: str
+    stem: str
+    path: Path
+    rgb: np.ndarray
+    orig_size: tuple[int, int]
+    scale: float
+    key: str
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.rgb.shape[0], self.rgb.shape[1]
+
+
+@dataclass(frozen=True)
+class PhotoSet:
+    name: str
+    root: Path
+    photos: tuple[Photo, ...]
+    gt_dir: Path | None
+    warnings: tuple[str, ...] = ()
+
+
+def find_image_dir(root: Path) -> tuple[Path, Path | None]:
+    """Return (folder with the photos, folder with ground truth or None)."""
+    root = Path(root)
+    if not root.exists():
+        raise InputError(f"{root}: no such folder")
+    if not root.is_dir():
+        raise InputError(f"{root}: not a folder (give the folder that holds the photos)")
+    images = root / "images"
+    if images.is_dir():
+        gt = root / "gt"
+        return images, (gt if gt.is_dir() else None)
+    return root, None
+
+
+def _decode(path: Path) -> np.ndarray:
+    """Decode a file to (H, W, 3) uint8 RGB with EXIF orientation applied."""
+    try:
+        size = path.stat().st_size
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    if size == 0:
+        raise InputError(f"{path}: empty file")
+    if size > MAX_FILE_BYTES:
+        raise InputError(f"{path}: file too large ({size / 2**20:.0f} MB)")
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    # IMREAD_ANYDEPTH keeps 16-bit; IMREAD_COLOR applies the EXIF orientation and drops alpha.
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    if img is None or img.size == 0:
+        raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
+    if img.shape[0] * img.shape[1] > MAX_PIXELS:
+        raise InputError(f"{path}: image too large ({img.shape[1]}x{img.shape[0]} pixels)")
+    if img.dtype == np.uint16:
+        img = (img / 257.0 + 0.5).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = np.clip(img.astype(np.float64) * (255.0 if img.max() <= 1.0 else 1.0), 0, 255).astype(np.uint8)
+    if img.shape[0] < 32 or img.shape[1] < 32:
+        raise InputError(f"{path}: image too small ({img.shape[1]}x{img.shape[0]} pixels)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def resize_to_max_side(rgb: np.ndarray, max_side: int) -> tuple[np.ndarray, float]:
+    """(H, W, 3) uint8 -> (h, w, 3) uint8 with max(h, w) <= max_side, and the scale h/H."""
+    h, w = rgb.shape[:2]
+    s = min(1.0, max_side / max(h, w))
+    if s >= 1.0:
+        return rgb, 1.0
+    size = (max(1, round(w * s)), max(1, round(h * s)))
+    return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), size[1] / h
+
+
+def load_photo(path: Path, max_side: int) -> Photo:
+    path = Path(path)
+    raw = _decode(path)
+    rgb, scale = resize_to_max_side(raw, max_side)
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    h.update(f"{max_side}:{rgb.shape}".encode())
+    return Photo(name=path.name, stem=path.stem, path=path, rgb=np.ascontiguousarray(rgb),
+                 orig_size=(raw.shape[0], raw.shape[1]), scale=scale, key=h.hexdigest()[:24])
+
+
+def list_images(folder: Path) -> tuple[list[Path], list[Path]]:
+    """Image files (by suffix) and other, non-hidden files of a folder, sorted by name."""
+    images, others = [], []
+    for p in sorted(folder.iterdir()):
+        if p.name.startswith(".") or p.is_dir():
+            continue
+        (images if p.suffix.lower() in IMAGE_SUFFIXES else others).append(p)
+    return images, others
+
+
+def load_set(root: Path, max_side: int = 640, warn=None) -> PhotoSet:
+    """Load every photo of a set. Unreadable photos are skipped with a warning.
+
+    Raises InputError when the folder is missing or empty, or fewer than two photos load.
+    """
+    warnings: list[str] = []
+
+    def _warn(msg: str) -> None:
+        warnings.append(msg)
+        if warn is not None:
+            warn(msg)
+
+    image_dir, gt_dir = find_image_dir(Path(root))
+    paths, others = list_images(image_dir)
+    for p in others:
+        _warn(f"{p}: skipped (not an image file type)")
+    if not paths:
+        raise InputError(f"{image_dir}: no images found (looked for {', '.join(sorted(IMAGE_SUFFIXES))})")
+    photos: list[Photo] = []
+    stems: set[str] = set()
+    for p in paths:
+        try:
+            ph = load_photo(p, max_side)
+        except InputError as e:
+            _warn(f"{e} -- skipped")
+            continue
+        if ph.stem in stems:
+            _warn(f"{p}: skipped (another photo has the same name stem {ph.stem!r})")
+            continue
+        stems.add(ph.stem)
+        photos.append(ph)
+    if len(photos) < 2:
+        raise InputError(f"{image_dir}: fewer than two usable images ({len(photos)} of {len(paths)} loaded)")
+    name = Path(root).resolve().name
+    return PhotoSet(name=name, root=Path(root), photos=tuple(photos), gt_dir=gt_dir, warnings=tuple(warnings))
+
+
+def load_gt(gt_dir: Path, stem: str, size: tuple[int, int]) -> np.ndarray | None:
+    """Ground truth `gt/<stem>.png`: (H, W) uint8 with 0 static, 255 moving, 128 don't care.
+
+    Returns None when the file does not exist. Values other than 0/128/255 are snapped
+    to the nearest of the three; a size mismatch is an InputError.
+    """
+    path = Path(gt_dir) / f"{stem}.png"
+    if not path.exists():
+        return None
+    data = np.fromfile(str(path), dtype=np.uint8)
+    gt = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    if gt is None:
+        raise InputError(f"{path}: not a readable ground-truth mask")
+    if gt.shape != tuple(size):
+        raise InputError(f"{path}: ground truth is {gt.shape[1]}x{gt.shape[0]} but the photo is {size[1]}x{size[0]}")
+    out = np.zeros_like(gt)
+    out[gt >= 192] = 255
+    out[(gt >= 64) & (gt < 192)] = 128
+    return out
+
+
+def is_inside(child: Path, parent: Path) -> bool:
+    try:
+        Path(os.path.realpath(child)).relative_to(os.path.realpath(parent))
+        return True
+    except ValueError:
+        return False

@@ -1,0 +1,229 @@
+"""One ordered pair (reference, support): patch confidences (§3.1.2, Eq. 1) and the pair's
+matching map before normalisation (§3.1.3, Eq. 2).
+
+The result keeps everything later stages and viewers need: per reference patch its raw HOG and
+colour confidence C(r|I_s, theta), whether it had any candidate in view, and its best candidate
+per descriptor; per pixel the Eq. 2 weighted averages of the raw confidences and the share of
+weight that came from patches with candidates ("evidence"). Normalising the confidences over the
+whole set, weighting descriptors and combining supports happen in aggregate.py, so they can be
+changed without recomputing pairs.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .descriptors import (ImageChannels, color_similarity, hog_similarity, strip_features,
+                          window_descriptors)
+from .geometry import epipoles
+from .params import Params
+from .patches import (RefStrips, SupportSegments, build_ref_strips, build_support_segments, ref_frames,
+                      ref_sample_points, support_sample_points)
+
+
+@dataclass(frozen=True)
+class PatchTable:
+    """Reference patches of one pair (P of them) and their best candidates.
+
+    strip, start: (P,) int64 strip id and along start within the strip (samples);
+    in_view: (P,) bool, enough of the patch lies inside the reference image to describe it;
+    has_candidate: (P,) bool, the corresponding support strip held at least one candidate;
+    conf_hog, conf_color: (P,) float32 raw confidences C(r|I_s, theta) (NaN without candidate);
+    best_hog_*/best_color_*: (P,) int64 segment, along start and length of the best candidate (-1: none).
+    """
+
+    strip: np.ndarray
+    start: np.ndarray
+    in_view: np.ndarray
+    has_candidate: np.ndarray
+    conf_hog: np.ndarray
+    conf_color: np.ndarray
+    best_hog_seg: np.ndarray
+    best_hog_start: np.ndarray
+    best_hog_len: np.ndarray
+    best_color_seg: np.ndarray
+    best_color_start: np.ndarray
+    best_color_len: np.ndarray
+
+
+@dataclass(frozen=True)
+class PairResult:
+    """Matching result of reference `ref` against support `sup` at working resolution (h, w).
+
+    hog_map, color_map: (h, w) float32, Eq. 2 weighted average of the raw confidences of the
+    covering patches that had candidates (NaN where none had);
+    evidence: (h, w) float32 in [0, 1], share of the Eq. 2 weight from patches with candidates.
+    """
+
+    ref: int
+    sup: int
+    hog_map: np.ndarray
+    color_map: np.ndarray
+    evidence: np.ndarray
+    patches: PatchTable
+    strips: RefStrips
+    segments: SupportSegments
+    sigma: float
+    seconds: float
+
+
+def patch_length(params: Params) -> int:
+    """Patch length L in working pixels, a multiple of the along overlap."""
+    ov = params.patches.along_overlap
+    return max(ov * 2, int(round(params.patches.patch_frac * params.max_side / ov)) * ov)
+
+
+def candidate_widths(params: Params, L: int, pair_scale: float) -> np.ndarray:
+    """The three candidate lengths (§3.1.1: 'with 3 different widths')."""
+    s = float(np.clip(pair_scale, 0.25, 4.0)) if params.patches.scale_from_features else 1.0
+    return np.unique(np.maximum(np.round(L * s * np.array(params.patches.candidate_scales)), 4).astype(np.int64))
+
+
+def match_pair(ref: int, sup: int, ch_ref: ImageChannels, ch_sup: ImageChannels, F: np.ndarray,
+               pair_scale: float, params: Params) -> PairResult:
+    """Compute C(r|I_s) for all reference patches and the pair's raw matching map."""
+    t_start = time.perf_counter()
+    pp, dp = params.patches, params.descriptors
+    L = patch_length(params)
+    e_ref, _ = epipoles(F)
+    st = build_ref_strips(e_ref, ch_ref.size, L, pp.along_overlap, pp.rows, pp.n_fans)
+    cells_across, cells_along = dp.hog_cells
+
+    # Reference strips -> patch descriptors.
+    xy_r, strip_of = ref_sample_points(st)
+    d_r, n_r = ref_frames(st)
+    sf_r = strip_features(ch_ref, xy_r, d_r[strip_of], n_r[strip_of], cells_across, dp.hog_bins, dp.hist_bins)
+    p_strip = np.repeat(np.arange(st.n_strips), st.n_win)
+    p_j = np.arange(len(p_strip)) - np.repeat(np.concatenate([[0], np.cumsum(st.n_win)[:-1]]), st.n_win)
+    p_start = p_j * st.stride
+    wr = window_descriptors(sf_r, st.offset[p_strip] + p_start, np.full(len(p_strip), L), cells_along, dp.hog_floor)
+    hog_r = wr.hog
+    in_view = wr.valid >= pp.min_valid_ref
+
+    # Support strips -> candidate descriptors, every `step` samples, three widths.
+    sg = build_support_segments(F, st, ch_ref.size, ch_sup.size)
+    xy_s, seg_of = support_sample_points(sg)
+    sf_s = strip_features(ch_sup, xy_s, sg.along_dir[seg_of], sg.across_dir[seg_of], cells_across,
+                          dp.hog_bins, dp.hist_bins)
+    step = max(1, int(round(L * pp.candidate_step_frac)))
+    c_seg, c_start, c_len = [], [], []
+    for width in candidate_widths(params, L, pair_scale):
+        n_q = np.maximum((sg.length - width) // step + 1, 0)
+        seg = np.repeat(np.arange(len(sg.length)), n_q)
+        q = np.arange(len(seg)) - np.repeat(np.concatenate([[0], np.cumsum(n_q)[:-1]]), n_q)
+        c_seg.append(seg), c_start.append(q * step), c_len.append(np.full(len(seg), width))
+    c_seg, c_start, c_len = (np.concatenate(a).astype(np.int64) for a in (c_seg, c_start, c_len))
+    wc = window_descriptors(sf_s, sg.offset[c_seg] + c_start, c_len, cells_along, dp.hog_floor)
+    keep = wc.valid >= pp.min_valid_candidate
+    c_seg, c_start, c_len = c_seg[keep], c_start[keep], c_len[keep]
+    hog_c = wc.hog[keep]
+    col_c = wc.color[keep]
+    c_strip = sg.strip[c_seg]
+    order = np.argsort(c_strip, kind="stable")
+    c_strip, c_seg, c_start, c_len, hog_c, col_c = (a[order] for a in (c_strip, c_seg, c_start, c_len, hog_c, col_c))
+
+    # Eq. 1: confidence = best similarity over the candidates of the corresponding strip.
+    P = len(p_strip)
+    conf_hog = np.full(P, np.nan, np.float32)
+    conf_col = np.full(P, np.nan, np.float32)
+    best_h = np.full(P, -1, np.int64)
+    best_c = np.full(P, -1, np.int64)
+    r_bounds = np.searchsorted(p_strip, np.arange(st.n_strips + 1))
+    c_bounds = np.searchsorted(c_strip, np.arange(st.n_strips + 1))
+    for s in range(st.n_strips):          # one vectorised block per strip (patches x candidates)
+        r0, r1 = r_bounds[s], r_bounds[s + 1]
+        c0, c1 = c_bounds[s], c_bounds[s + 1]
+        if c1 == c0:
+            continue
+        rows = np.arange(r0, r1)[in_view[r0:r1]]
+        if len(rows) == 0:
+            continue
+        sim_h = hog_similarity(hog_r[rows], hog_c[c0:c1])
+        sim_c = color_similarity(wr.color[rows], col_c[c0:c1])
+        ih, ic = sim_h.argmax(axis=1), sim_c.argmax(axis=1)
+        conf_hog[rows] = sim_h[np.arange(len(rows)), ih]
+        conf_col[rows] = sim_c[np.arange(len(rows)), ic]
+        best_h[rows], best_c[rows] = c0 + ih, c0 + ic
+    has_cand = best_h >= 0
+
+    def pick(a, idx):
+        return np.where(idx >= 0, a[np.maximum(idx, 0)], -1).astype(np.int64)
+
+    table = PatchTable(
+        strip=p_strip.astype(np.int64), start=p_start.astype(np.int64), in_view=in_view, has_candidate=has_cand,
+        conf_hog=conf_hog, conf_color=conf_col,
+        best_hog_seg=pick(c_seg, best_h), best_hog_start=pick(c_start, best_h), best_hog_len=pick(c_len, best_h),
+        best_color_seg=pick(c_seg, best_c), best_color_start=pick(c_start, best_c),
+        best_color_len=pick(c_len, best_c))
+    sigma = patch_sigma(params)
+    hog_map, color_map, evidence = splat(st, table, ch_ref.size, sigma)
+    return PairResult(ref, sup, hog_map, color_map, evidence, table, st, sg, sigma, time.perf_counter() - t_start)
+
+
+def patch_sigma(params: Params) -> float:
+    """Eq. 2: sigma = (max distance from a patch centre to a pixel of the patch) / 3, for the
+    nominal L x L patch (strip height equals L at the reference distance)."""
+    L = patch_length(params)
+    return float(np.hypot(L / 2, L / 2) * params.aggregate.sigma_frac)
+
+
+def splat(st: RefStrips, table: PatchTable, size: tuple[int, int], sigma: float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 2 for every pixel: Gaussian-weighted average over the 9 covering patches.
+
+    Returns hog_map, color_map (h, w) float32 (NaN where no covering patch had a candidate) and
+    evidence (h, w) float32.
+    """
+    h, w = size
+    ys, xs = np.mgrid[0:h, 0:w]
+    dx = xs.ravel() - st.epipole[0]
+    dy = ys.ravel() - st.epipole[1]
+    r = np.hypot(dx, dy)
+    theta = np.arctan2(dy, dx)
+    rel = np.mod(theta - st.theta_lo, 2 * np.pi)
+    # strip id per (fan, k); -1 where the strip was dropped
+    win_base = np.concatenate([[0], np.cumsum(st.n_win)[:-1]])
+    w_all = np.zeros(h * w)
+    w_cand = np.zeros(h * w)
+    s_hog = np.zeros(h * w)
+    s_col = np.zeros(h * w)
+    usable = table.in_view
+    cand = usable & table.has_candidate
+    conf_h = np.where(cand, table.conf_hog, 0.0)
+    conf_c = np.where(cand, table.conf_color, 0.0)
+    inv2s2 = 1.0 / (2 * sigma * sigma)
+    for f in range(st.n_fans):
+        lut = np.full(int(st.n_per_fan[f]) + 2, -1, np.int64)
+        sel = np.nonzero(st.fan == f)[0]
+        lut[st.k[sel]] = sel
+        k = st.strip_index(rel, f)
+        ok = (k >= 0) & (k < st.n_per_fan[f])
+        s = np.where(ok, lut[np.clip(k, 0, len(lut) - 1)], -1)
+        ok &= s >= 0
+        s = np.maximum(s, 0)
+        dth = theta - st.theta_c[s]
+        t = r * np.cos(dth)
+        u = r * np.sin(dth)
+        j_hi = np.floor((t - st.t0[s]) / st.stride).astype(np.int64)
+        for m in range(st.L // st.stride):
+            j = j_hi - m
+            okj = ok & (j >= 0) & (j < st.n_win[s])
+            pid = np.where(okj, win_base[s] + np.clip(j, 0, None), 0)
+            pid = np.minimum(pid, len(usable) - 1)
+            tc = st.t0[s] + j * st.stride + st.L / 2
+            wgt = np.exp(-((t - tc) ** 2 + u ** 2) * inv2s2) * okj
+            wu = wgt * usable[pid]
+            wc = wgt * cand[pid]
+            w_all += wu
+            w_cand += wc
+            s_hog += wc * conf_h[pid]
+            s_col += wc * conf_c[pid]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hog_map = np.where(w_cand > 0, s_hog / w_cand, np.nan)
+        color_map = np.where(w_cand > 0, s_col / w_cand, np.nan)
+        evidence = np.where(w_all > 0, w_cand / w_all, 0.0)
+    return (hog_map.reshape(h, w).astype(np.float32), color_map.reshape(h, w).astype(np.float32),
+            evidence.reshape(h, w).astype(np.float32))

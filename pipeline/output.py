@@ -1,0 +1,117 @@
+"""Write a run's outputs: maps (.npy), masks (.png), overlays (.jpg) and summary.json.
+
+Everything is written into a staging folder beside the destination and renamed into place at the
+end, so a failed or interrupted run leaves no half-written output (a previous output folder is
+replaced only when the new one is complete).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .geometry import fundamental_to_original
+from .loading import Photo
+from .run import SetResult
+
+
+def to_original(prob: np.ndarray, photo: Photo) -> np.ndarray:
+    """(h, w) working-resolution map -> (H, W) float32 at the photo's original size."""
+    H, W = photo.orig_size
+    if prob.shape == (H, W):
+        return prob.astype(np.float32)
+    return np.clip(cv2.resize(prob, (W, H), interpolation=cv2.INTER_LINEAR), 0.0, 1.0).astype(np.float32)
+
+
+def heat_overlay(rgb: np.ndarray, prob: np.ndarray, mask: np.ndarray | None = None, alpha: float = 0.5) -> np.ndarray:
+    """Blend a blue (static) to red (dynamic) heat map over the photo; (H, W, 3) uint8 RGB.
+
+    mask: optional (H, W) bool; its outline is drawn in white.
+    """
+    heat = cv2.applyColorMap(np.clip(prob * 255 + 0.5, 0, 255).astype(np.uint8), cv2.COLORMAP_JET)[..., ::-1]
+    out = (rgb.astype(np.float32) * (1 - alpha) + heat.astype(np.float32) * alpha).astype(np.uint8)
+    if mask is not None and mask.any():
+        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        cv2.drawContours(out, contours, -1, (255, 255, 255), max(1, round(max(rgb.shape[:2]) / 400)))
+    return out
+
+
+def _imwrite(path: Path, img: np.ndarray, params: list[int] | None = None) -> None:
+    ok, buf = cv2.imencode(path.suffix, img, params or [])
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    path.write_bytes(buf.tobytes())
+
+
+def summary_dict(res: SetResult, threshold: float, extra: dict | None = None) -> dict:
+    photos = res.photo_set.photos
+    pairs = []
+    for (i, j), g in sorted(res.pairs.items()):
+        d = g.summary()
+        d["ref"], d["sup"] = photos[i].stem, photos[j].stem
+        d["F"] = None if g.F is None else fundamental_to_original(g.F, photos[i].scale, photos[j].scale).tolist()
+        pairs.append(d)
+    return {
+        "set": res.photo_set.name,
+        "input": str(Path(res.photo_set.root).resolve()),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "F_convention": "x_support^T F x_reference = 0, original-resolution pixel coordinates, "
+                        "(0, 0) = centre of the top-left pixel",
+        "preset": res.params.preset,
+        "parameters": res.params.to_dict(),
+        "threshold": threshold,
+        "images": [{"stem": p.stem, "file": p.name, "size": list(p.orig_size), "working_size": list(p.size),
+                    "supports": [photos[j].stem for j in res.supports[i]],
+                    "has_map": res.dynamic[i] is not None} for i, p in enumerate(photos)],
+        "pairs": pairs,
+        "normaliser": res.normaliser.to_dict(),
+        "timings": {k: round(v, 3) for k, v in res.timings.items()},
+        "cache": {"hits": res.cache_hits, "misses": res.cache_misses},
+        "warnings": list(res.photo_set.warnings) + list(res.warnings),
+        **(extra or {}),
+    }
+
+
+def write_outputs(res: SetResult, out_dir: Path, threshold: float, extra: dict | None = None) -> Path:
+    """Write maps/, masks/, overlays/ and summary.json for every photo with a map."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    try:
+        for sub in ("maps", "masks", "overlays"):
+            (stage / sub).mkdir()
+        for photo, dyn in zip(res.photo_set.photos, res.dynamic):
+            if dyn is None:
+                continue
+            prob = to_original(dyn, photo)
+            mask = prob > threshold
+            np.save(stage / "maps" / f"{photo.stem}.npy", prob)
+            _imwrite(stage / "masks" / f"{photo.stem}.png", mask.astype(np.uint8) * 255)
+            rgb = _original_rgb(photo)
+            _imwrite(stage / "overlays" / f"{photo.stem}.jpg", heat_overlay(rgb, prob, mask)[..., ::-1],
+                     [cv2.IMWRITE_JPEG_QUALITY, 88])
+        (stage / "summary.json").write_text(json.dumps(summary_dict(res, threshold, extra), indent=1))
+        if out_dir.exists():
+            trash = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+            os.replace(out_dir, trash / "old")
+            os.replace(stage, out_dir)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.replace(stage, out_dir)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    return out_dir
+
+
+def _original_rgb(photo: Photo) -> np.ndarray:
+    """The photo at original resolution (decoded again; the set keeps only the working copy)."""
+    from .loading import _decode
+    return _decode(photo.path)

@@ -1,0 +1,239 @@
+"""Run the method on a photo set: features -> geometry -> support sets -> pairs -> aggregation.
+
+`detect_set` is the one entry point used by the CLI, the benchmark, the Rerun logger and the
+inspector. Per-pair work runs in a process pool (both cores) and is cached on disk.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from typing import Callable, Iterable
+
+import numpy as np
+
+from . import cache as cache_mod
+from .aggregate import Normaliser, combine, match_probability
+from .descriptors import image_channels
+from .features import Features, detect
+from .loading import InputError, PhotoSet
+from .matching import PairResult, match_pair
+from .params import Params
+from .support import PairGeometry, estimate_pair, support_sets
+
+Progress = Callable[[str, int, int], None]
+MAP_FIELDS = ("hog_map", "color_map", "evidence")
+
+
+@dataclass
+class SetResult:
+    """Everything computed for a set, at working resolution.
+
+    pairs: geometry per ordered pair (i, j); supports[i]: admitted support indices of photo i;
+    pair_results[(i, j)]: matching result for every admitted ordered pair;
+    normaliser: set-level confidence ranges (§3.1.2); dynamic[i]: (h_i, w_i) float32 P_dynamic,
+    or None when photo i has no support.
+    """
+
+    params: Params
+    photo_set: PhotoSet
+    pairs: dict[tuple[int, int], PairGeometry]
+    supports: list[list[int]]
+    pair_results: dict[tuple[int, int], PairResult]
+    normaliser: Normaliser
+    dynamic: list[np.ndarray | None]
+    timings: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    cache_hits: int = 0
+    cache_misses: int = 0
+
+    def match_prob(self, i: int, j: int, params: Params | None = None) -> np.ndarray:
+        """P(x|I_j) for reference i, (h, w) float32 (Eq. 2)."""
+        p = params or self.params
+        r = self.pair_results[(i, j)]
+        return match_probability(r.hog_map, r.color_map, r.evidence, self.normaliser, p.descriptors, p.aggregate)
+
+
+# ----------------------------------------------------------------------------- workers
+_W: dict = {}
+
+
+def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
+    import cv2
+    cv2.setNumThreads(1)
+    _W["rgbs"], _W["params"], _W["channels"] = rgbs, params, {}
+
+
+def _channels(i: int):
+    ch = _W["channels"]
+    if i not in ch:
+        ch[i] = image_channels(_W["rgbs"][i], _W["params"].descriptors.hist_bins)
+    return ch[i]
+
+
+def _task_features(i: int) -> tuple[int, Features]:
+    return i, detect(_W["rgbs"][i], _W["params"].geometry.sift_features)
+
+
+def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[int, int], bytes]:
+    rgbs, p = _W["rgbs"], _W["params"]
+    g = estimate_pair(i, j, fi, fj, rgbs[i].shape[:2], rgbs[j].shape[:2], p.geometry)
+    return (i, j), cache_mod.to_bytes(g)
+
+
+def _task_pair(i: int, j: int, F: np.ndarray, scale: float) -> tuple[tuple[int, int], bytes]:
+    r = match_pair(i, j, _channels(i), _channels(j), F, scale, _W["params"])
+    return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
+
+
+class _Runner:
+    """Runs tasks in a spawn-based process pool, or inline for one worker."""
+
+    def __init__(self, rgbs: list[np.ndarray], params: Params, workers: int):
+        self.workers = workers
+        self.pool = None
+        self.args = (rgbs, params)
+        if workers <= 1:
+            _init_worker(rgbs, params)
+
+    def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None]) -> None:
+        if not arg_list:
+            return
+        if self.workers <= 1:
+            for a in arg_list:
+                on_done(fn(*a))
+            return
+        if self.pool is None:
+            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+                os.environ.setdefault(var, "1")
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
+                                            initializer=_init_worker, initargs=self.args)
+        futures = [self.pool.submit(fn, *a) for a in arg_list]
+        try:
+            for fut in as_completed(futures):
+                on_done(fut.result())
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
+
+
+def default_workers() -> int:
+    return max(1, min(os.cpu_count() or 1, 8))
+
+
+# ----------------------------------------------------------------------------- entry point
+def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache | None = None,
+               workers: int | None = None, progress: Progress | None = None,
+               warn: Callable[[str], None] | None = None, only_refs: Iterable[int] | None = None) -> SetResult:
+    """Compute P_dynamic for every photo of the set (or only for `only_refs`)."""
+    cache = cache or cache_mod.PairCache(None)
+    workers = default_workers() if workers is None else workers
+    progress = progress or (lambda *_: None)
+    warnings: list[str] = []
+
+    def _warn(msg: str) -> None:
+        warnings.append(msg)
+        if warn:
+            warn(msg)
+
+    photos = photo_set.photos
+    n = len(photos)
+    rgbs = [p.rgb for p in photos]
+    timings: dict[str, float] = {}
+    hits0, miss0 = cache.hits, cache.misses
+    runner = _Runner(rgbs, params, workers)
+    try:
+        # 1-2. Geometry per unordered pair, cached; features only when some pair needs them.
+        t0 = time.perf_counter()
+        gkey = {(i, j): cache_mod.key("geometry", photos[i].key, photos[j].key, params.geometry_key_material())
+                for i in range(n) for j in range(i + 1, n)}
+        pairs: dict[tuple[int, int], PairGeometry] = {}
+        todo = []
+        for ij, k in gkey.items():
+            data = cache.get("geometry", k)
+            if data is not None:
+                pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
+            else:
+                todo.append(ij)
+        if todo:
+            need = sorted({i for ij in todo for i in ij})
+            feats: dict[int, Features] = {}
+            done = [0]
+
+            def got_features(res):
+                feats[res[0]] = res[1]
+                done[0] += 1
+                progress("features", done[0], len(need))
+            runner.map(_task_features, [(i,) for i in need], got_features)
+            gdone = [0]
+
+            def got_geometry(res):
+                ij, data = res
+                cache.put("geometry", gkey[ij], data)
+                pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
+                gdone[0] += 1
+                progress("geometry", gdone[0], len(todo))
+            runner.map(_task_geometry, [(i, j, feats[i], feats[j]) for i, j in todo], got_geometry)
+        for (i, j) in list(pairs):
+            pairs[(j, i)] = pairs[(i, j)].reversed()
+        supports = support_sets(pairs, n)
+        timings["geometry_s"] = time.perf_counter() - t0
+        if n >= 2 and not any(supports):
+            reasons = sorted({pairs[(i, j)].reason.split(" (")[0] for i in range(n) for j in range(i + 1, n)})
+            raise InputError(f"{photo_set.root}: no pair of photos has trustworthy geometry "
+                             f"(all {n * (n - 1) // 2} pairs rejected: {'; '.join(reasons)})")
+        for i, s in enumerate(supports):
+            if not s:
+                _warn(f"{photos[i].path}: no usable pair (no other photo has trustworthy geometry with it); "
+                      "no map for this photo")
+
+        # 3-5. Pairs: matching maps, cached.
+        t1 = time.perf_counter()
+        refs = list(range(n)) if only_refs is None else sorted(set(only_refs))
+        ordered = [(i, j) for i in refs for j in supports[i]]
+        pkey = {(i, j): cache_mod.key("pair", photos[i].key, photos[j].key, params.geometry_key_material(),
+                                      params.pair_key_material()) for i, j in ordered}
+        results: dict[tuple[int, int], PairResult] = {}
+        todo = []
+        for ij in ordered:
+            data = cache.get("pair", pkey[ij])
+            if data is not None:
+                results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
+            else:
+                todo.append(ij)
+        pdone = [len(ordered) - len(todo)]
+        progress("pairs", pdone[0], len(ordered))
+
+        def got_pair(res):
+            ij, data = res
+            cache.put("pair", pkey[ij], data)
+            results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
+            pdone[0] += 1
+            progress("pairs", pdone[0], len(ordered))
+        runner.map(_task_pair, [(i, j, pairs[(i, j)].F, pairs[(i, j)].scale) for i, j in todo], got_pair)
+        timings["pairs_s"] = time.perf_counter() - t1
+    finally:
+        runner.close()
+
+    # 6. Set-level normalisation and aggregation.
+    t2 = time.perf_counter()
+    norm = Normaliser.from_confidences([r.patches.conf_hog for r in results.values()],
+                                       [r.patches.conf_color for r in results.values()],
+                                       params.descriptors.norm_percentile)
+    result = SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings, warnings)
+    for i in refs:
+        if supports[i]:
+            result.dynamic[i] = combine([result.match_prob(i, j) for j in supports[i]], params.aggregate)
+    timings["aggregate_s"] = time.perf_counter() - t2
+    result.cache_hits = cache.hits - hits0
+    result.cache_misses = cache.misses - miss0
+    return result

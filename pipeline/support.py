@@ -1,0 +1,138 @@
+"""Fundamental matrices per pair and the test that admits a pair to the support set (§3).
+
+The paper keeps "only pairs of images where BEEM succeeded". A robust estimator always returns
+*some* F, so success needs a test. On hand-held photos of planar-heavy scenes RANSAC happily
+returns a wrong F with many "inliers": the inliers lie on one plane (or the cameras only
+rotated), which fixes a homography but leaves F free along a family. A pair is admitted when:
+
+1. enough F inliers (`min_inliers`);
+2. they are spread over both images (convex hull share >= `min_spread`): F from a corner of
+   the image extrapolates badly;
+3. F is not degenerate: one homography must not explain `max_homography_share` of the F inliers
+   (a dominant plane, pure rotation, near-zero baseline or a distant scene);
+4. F is stable: refitted on a random half of the matches, the other half's inliers stay within
+   `max_instability_px` of their epipolar lines (median). Repeated texture and near-degenerate
+   configurations give Fs that move a lot between fits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .features import Features, match
+from .geometry import convex_hull_share, symmetric_epipolar_distance
+from .params import GeometryParams
+
+OK = "ok"
+REJECTED = "rejected"
+
+
+@dataclass(frozen=True)
+class PairGeometry:
+    """Geometry of an ordered pair (ref, sup) at working resolution.
+
+    F: (3, 3) float64 with x_sup^T F x_ref = 0, or None when no F could be fitted.
+    inliers_ref / inliers_sup: (K, 2) float32 matched inlier positions; outliers_*: the rest.
+    scale: median ratio of SIFT sizes sup/ref over inliers (the pair's relative zoom).
+    """
+
+    ref: int
+    sup: int
+    F: np.ndarray | None
+    status: str
+    reason: str
+    n_matches: int
+    n_inliers: int
+    spread: float
+    homography_share: float
+    instability_px: float
+    scale: float
+    inliers_ref: np.ndarray
+    inliers_sup: np.ndarray
+    outliers_ref: np.ndarray
+    outliers_sup: np.ndarray
+
+    @property
+    def ok(self) -> bool:
+        return self.status == OK
+
+    def reversed(self) -> "PairGeometry":
+        """The same pair seen from the other image: F -> F^T, roles swapped."""
+        return PairGeometry(
+            ref=self.sup, sup=self.ref, F=None if self.F is None else self.F.T.copy(), status=self.status,
+            reason=self.reason, n_matches=self.n_matches, n_inliers=self.n_inliers, spread=self.spread,
+            homography_share=self.homography_share, instability_px=self.instability_px,
+            scale=1.0 / self.scale if self.scale > 0 else self.scale,
+            inliers_ref=self.inliers_sup, inliers_sup=self.inliers_ref,
+            outliers_ref=self.outliers_sup, outliers_sup=self.outliers_ref)
+
+    def summary(self) -> dict:
+        return {"ref": self.ref, "sup": self.sup, "status": self.status, "reason": self.reason,
+                "n_matches": self.n_matches, "n_inliers": self.n_inliers, "spread": round(self.spread, 3),
+                "homography_share": round(self.homography_share, 3),
+                "instability_px": round(self.instability_px, 3), "scale": round(self.scale, 3)}
+
+
+def _fit_f(p_ref: np.ndarray, p_sup: np.ndarray, thr: float, seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
+    if len(p_ref) < 8:
+        return None, np.zeros(len(p_ref), bool)
+    cv2.setRNGSeed(seed)
+    F, mask = cv2.findFundamentalMat(p_ref, p_sup, cv2.USAC_MAGSAC, thr, 0.9999, 20000)
+    if F is None or F.shape != (3, 3):
+        return None, np.zeros(len(p_ref), bool)
+    return F / np.linalg.norm(F), mask.ravel().astype(bool)
+
+
+def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int, int],
+                  size_j: tuple[int, int], p: GeometryParams) -> PairGeometry:
+    """Match features of photos i (reference) and j (support), fit F, and test it."""
+    m = match(fi, fj, p.ratio)
+    p_ref = fi.xy[m[:, 0]].astype(np.float32)
+    p_sup = fj.xy[m[:, 1]].astype(np.float32)
+    empty = np.zeros((0, 2), np.float32)
+
+    def result(F, status, reason, inl=None, spread=0.0, hshare=0.0, instab=0.0, scale=1.0):
+        inl = np.zeros(len(m), bool) if inl is None else inl
+        return PairGeometry(i, j, F, status, reason, len(m), int(inl.sum()), spread, hshare, instab, scale,
+                            p_ref[inl], p_sup[inl], p_ref[~inl], p_sup[~inl])
+
+    if len(m) < max(8, p.min_inliers):
+        return result(None, REJECTED, f"too few feature matches ({len(m)} < {max(8, p.min_inliers)})")
+    F, inl = _fit_f(p_ref, p_sup, p.ransac_px)
+    if F is None:
+        return result(None, REJECTED, "no fundamental matrix could be fitted")
+    n_in = int(inl.sum())
+    scale = float(np.median(fj.size[m[inl, 1]] / np.maximum(fi.size[m[inl, 0]], 1e-6))) if n_in else 1.0
+    if n_in < p.min_inliers:
+        return result(F, REJECTED, f"too few inliers ({n_in} < {p.min_inliers})", inl, scale=scale)
+    spread = min(convex_hull_share(p_ref[inl], size_i), convex_hull_share(p_sup[inl], size_j))
+    if spread < p.min_spread:
+        return result(F, REJECTED, f"inliers poorly spread (hull covers {spread:.0%} < {p.min_spread:.0%})",
+                      inl, spread, scale=scale)
+    # Degeneracy: does one homography explain (almost) all F inliers?
+    H, hmask = cv2.findHomography(p_ref[inl], p_sup[inl], cv2.USAC_MAGSAC, p.ransac_px * 2.0, None, 10000, 0.9999)
+    hshare = float(hmask.sum()) / n_in if H is not None else 0.0
+    if hshare >= p.max_homography_share:
+        return result(F, REJECTED, f"degenerate: one homography explains {hshare:.0%} of the inliers "
+                      "(dominant plane, pure rotation or no baseline)", inl, spread, hshare, scale=scale)
+    # Stability: refit on a random half of the matches, measure the other inliers' distances.
+    rng = np.random.default_rng(12345)
+    half = rng.random(len(m)) < 0.5
+    F2, _ = _fit_f(p_ref[half], p_sup[half], p.ransac_px, seed=1)
+    test = inl & ~half
+    if F2 is None or test.sum() < 8:
+        instab = float("inf")
+    else:
+        instab = float(np.median(symmetric_epipolar_distance(F2, p_ref[test], p_sup[test])))
+    if not instab <= p.max_instability_px:
+        return result(F, REJECTED, f"unstable: F refitted on half the matches moves inliers by "
+                      f"{instab:.1f} px (> {p.max_instability_px} px)", inl, spread, hshare, instab, scale)
+    return result(F, OK, "", inl, spread, hshare, instab, scale)
+
+
+def support_sets(pairs: dict[tuple[int, int], PairGeometry], n: int) -> list[list[int]]:
+    """For each reference index, the sorted indices of its admitted support images."""
+    return [sorted(j for j in range(n) if j != i and pairs[(i, j)].ok) for i in range(n)]
