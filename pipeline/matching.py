@@ -20,8 +20,8 @@ from .descriptors import (ImageChannels, color_similarity, hog_similarity, strip
                           window_descriptors)
 from .geometry import epipoles
 from .params import Params
-from .patches import (RefStrips, SupportSegments, build_ref_strips, build_support_segments, ref_frames,
-                      ref_sample_points, support_sample_points)
+from .patches import (RefStrips, SupportSegments, build_ref_strips, build_support_segments, iter_covering,
+                      ref_frames, ref_sample_points, support_sample_points)
 
 
 @dataclass(frozen=True)
@@ -178,49 +178,21 @@ def splat(st: RefStrips, table: PatchTable, size: tuple[int, int], sigma: float
     evidence (h, w) float32.
     """
     h, w = size
-    ys, xs = np.mgrid[0:h, 0:w]
-    dx = xs.ravel() - st.epipole[0]
-    dy = ys.ravel() - st.epipole[1]
-    r = np.hypot(dx, dy)
-    theta = np.arctan2(dy, dx)
-    rel = np.mod(theta - st.theta_lo, 2 * np.pi)
-    # strip id per (fan, k); -1 where the strip was dropped
-    win_base = np.concatenate([[0], np.cumsum(st.n_win)[:-1]])
-    w_all = np.zeros(h * w)
-    w_cand = np.zeros(h * w)
-    s_hog = np.zeros(h * w)
-    s_col = np.zeros(h * w)
+    n = h * w
+    w_all, w_cand, s_hog, s_col = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     usable = table.in_view
     cand = usable & table.has_candidate
     conf_h = np.where(cand, table.conf_hog, 0.0)
     conf_c = np.where(cand, table.conf_color, 0.0)
     inv2s2 = 1.0 / (2 * sigma * sigma)
-    for f in range(st.n_fans):
-        lut = np.full(int(st.n_per_fan[f]) + 2, -1, np.int64)
-        sel = np.nonzero(st.fan == f)[0]
-        lut[st.k[sel]] = sel
-        k = st.strip_index(rel, f)
-        ok = (k >= 0) & (k < st.n_per_fan[f])
-        s = np.where(ok, lut[np.clip(k, 0, len(lut) - 1)], -1)
-        ok &= s >= 0
-        s = np.maximum(s, 0)
-        dth = theta - st.theta_c[s]
-        t = r * np.cos(dth)
-        u = r * np.sin(dth)
-        j_hi = np.floor((t - st.t0[s]) / st.stride).astype(np.int64)
-        for m in range(st.L // st.stride):
-            j = j_hi - m
-            okj = ok & (j >= 0) & (j < st.n_win[s])
-            pid = np.where(okj, win_base[s] + np.clip(j, 0, None), 0)
-            pid = np.minimum(pid, len(usable) - 1)
-            tc = st.t0[s] + j * st.stride + st.L / 2
-            wgt = np.exp(-((t - tc) ** 2 + u ** 2) * inv2s2) * okj
-            wu = wgt * usable[pid]
-            wc = wgt * cand[pid]
-            w_all += wu
-            w_cand += wc
-            s_hog += wc * conf_h[pid]
-            s_col += wc * conf_c[pid]
+    for pid, ok, d2 in iter_covering(st, size):
+        wgt = np.exp(-d2 * inv2s2) * ok
+        wu = wgt * usable[pid]
+        wc = wgt * cand[pid]
+        w_all += wu
+        w_cand += wc
+        s_hog += wc * conf_h[pid]
+        s_col += wc * conf_c[pid]
     with np.errstate(invalid="ignore", divide="ignore"):
         hog_map = np.where(w_cand > 0, s_hog / w_cand, np.nan)
         color_map = np.where(w_cand > 0, s_col / w_cand, np.nan)

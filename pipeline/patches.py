@@ -201,6 +201,52 @@ def build_ref_strips(e_h: np.ndarray, size: tuple[int, int], L: int, along_overl
                      theta_c, t0, n_win.astype(np.int64), offset, L, stride, rows)
 
 
+def iter_covering(st: RefStrips, size: tuple[int, int]):
+    """For every pixel of an (h, w) reference image, the patches that cover it.
+
+    Yields one (patch_id, ok, d2) triple per (fan, along offset), i.e. n_fans * along_overlap
+    times: patch_id (h*w,) int64 index into the patch table (strip-major order, as in
+    matching.match_pair), ok (h*w,) bool where that patch exists, and d2 (h*w,) float64 squared
+    distance in pixels from the pixel to the patch centre.
+    """
+    h, w = size
+    ys, xs = np.mgrid[0:h, 0:w]
+    dx = xs.ravel() - st.epipole[0]
+    dy = ys.ravel() - st.epipole[1]
+    r = np.hypot(dx, dy)
+    theta = np.arctan2(dy, dx)
+    rel = np.mod(theta - st.theta_lo, 2 * np.pi)
+    win_base = np.concatenate([[0], np.cumsum(st.n_win)[:-1]])
+    n_patches = int(st.n_win.sum())
+    for f in range(st.n_fans):
+        lut = np.full(int(st.n_per_fan[f]), -1, np.int64)
+        sel = np.nonzero(st.fan == f)[0]
+        lut[st.k[sel]] = sel
+        k = st.strip_index(rel, f)
+        ok_f = (k >= 0) & (k < st.n_per_fan[f])
+        s = np.where(ok_f, lut[np.clip(k, 0, len(lut) - 1)], -1)
+        ok_f &= s >= 0
+        s = np.maximum(s, 0)
+        dth = theta - st.theta_c[s]
+        t = r * np.cos(dth)
+        u2 = (r * np.sin(dth)) ** 2
+        j_hi = np.floor((t - st.t0[s]) / st.stride).astype(np.int64)
+        for m in range(st.L // st.stride):
+            j = j_hi - m
+            ok = ok_f & (j >= 0) & (j < st.n_win[s]) & (t >= 0)
+            pid = np.minimum(np.where(ok, win_base[s] + np.maximum(j, 0), 0), n_patches - 1)
+            tc = st.t0[s] + j * st.stride + st.L / 2
+            yield pid, ok, (t - tc) ** 2 + u2
+
+
+def patch_coverage(st: RefStrips, size: tuple[int, int]) -> np.ndarray:
+    """(h, w) int32: number of reference patches covering each pixel (about 9, paper §4)."""
+    count = np.zeros(size[0] * size[1], np.int32)
+    for _, ok, _ in iter_covering(st, size):
+        count += ok
+    return count.reshape(size)
+
+
 def ref_frames(st: RefStrips) -> tuple[np.ndarray, np.ndarray]:
     """Unit along (d) and across (n) directions per strip, (S, 2) each. Rows increase along n."""
     d = np.stack([np.cos(st.theta_c), np.sin(st.theta_c)], axis=1)
@@ -329,17 +375,22 @@ def build_support_segments(F: np.ndarray, st: RefStrips, ref_size: tuple[int, in
         a, b = _line_box_s(lines[:, li], foot, d, n, sup_size)
         s_min = np.fmin(s_min, a)
         s_max = np.fmax(s_max, b)
-    # Across offset of row lines at along s: u_i(s) = -(l_i.foot + s l_i.d) / (l_i.n).
+    # Across offset of a line at along s in strip idx's frame: u = -(l.foot + s l.d) / (l.n).
     la, lb = lines[:, 0], lines[:, -1]
-    def u_at(l, s):
-        return -((l[:, 0] * foot[:, 0] + l[:, 1] * foot[:, 1] + l[:, 2]) + s * (l[:, 0] * d[:, 0] + l[:, 1] * d[:, 1])) \
-            / np.where(np.abs(l[:, 0] * n[:, 0] + l[:, 1] * n[:, 1]) < 1e-12, 1e-12, l[:, 0] * n[:, 0] + l[:, 1] * n[:, 1])
+
+    def u_at(l: np.ndarray, s: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        f, dd, nn = foot[idx], d[idx], n[idx]
+        ln = l[:, 0] * nn[:, 0] + l[:, 1] * nn[:, 1]
+        ln = np.where(np.abs(ln) < 1e-12, 1e-12, ln)
+        return -((l[:, 0] * f[:, 0] + l[:, 1] * f[:, 1] + l[:, 2]) + s * (l[:, 0] * dd[:, 0] + l[:, 1] * dd[:, 1])) / ln
+
     # The boundary lines cross at the support epipole: s* where u_a(s*) = u_b(s*).
-    ua0, ub0 = u_at(la, np.zeros(len(d))), u_at(lb, np.zeros(len(d)))
-    ua1, ub1 = u_at(la, np.ones(len(d))), u_at(lb, np.ones(len(d)))
-    slope = (ub1 - ua1) - (ub0 - ua0)
+    allidx = np.arange(len(d))
+    zeros, ones = np.zeros(len(d)), np.ones(len(d))
+    w0 = u_at(lb, zeros, allidx) - u_at(la, zeros, allidx)
+    w1 = u_at(lb, ones, allidx) - u_at(la, ones, allidx)
     with np.errstate(divide="ignore", invalid="ignore"):
-        s_cross = np.where(np.abs(slope) > 1e-15, -(ub0 - ua0) / slope, np.inf)
+        s_cross = np.where(np.abs(w1 - w0) > 1e-15, -w0 / (w1 - w0), np.inf)
     seg_strip, seg_s0, seg_len, seg_step, seg_m = [], [], [], [], []
     valid = np.isfinite(s_min) & np.isfinite(s_max) & (s_max > s_min)
     for sid in np.nonzero(valid)[0]:
@@ -351,7 +402,7 @@ def build_support_segments(F: np.ndarray, st: RefStrips, ref_size: tuple[int, in
             if b - a < 2:
                 continue
             mid = 0.5 * (a + b)
-            width = u_at(lb[sid:sid + 1], np.array([mid]))[0] - u_at(la[sid:sid + 1], np.array([mid]))[0]
+            width = w0[sid] + mid * (w1[sid] - w0[sid])          # linear in s
             # Frame (d, m) with m = sign(width) n; its handedness det[d, m] sets the traversal.
             hand = np.sign(width) * (d[sid, 0] * n[sid, 1] - d[sid, 1] * n[sid, 0])
             step = 1 if hand > 0 else -1

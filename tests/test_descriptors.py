@@ -1,0 +1,84 @@
+"""Descriptor similarity properties (§3.1.2)."""
+
+import numpy as np
+
+from pipeline.descriptors import (color_similarity, hog_similarity, image_channels, strip_features,
+                                  window_descriptors)
+
+
+def _strip_of_image(rgb, rows=9):
+    """Sample an image row-block as one strip: along = +x, across = +y."""
+    h, w = rgb.shape[:2]
+    ys = np.linspace(2, h - 3, rows)
+    xy = np.stack(np.meshgrid(np.arange(w, dtype=float), ys), axis=-1)        # (rows, w, 2)
+    ch = image_channels(rgb, 10)
+    along = np.tile([[1.0, 0.0]], (w, 1))
+    across = np.tile([[0.0, 1.0]], (w, 1))
+    return strip_features(ch, xy, along, across, 3, 9, 10)
+
+
+def _textured(seed, h=40, w=200):
+    rng = np.random.default_rng(seed)
+    img = (rng.random((h // 4, w // 4, 3)) * 255).astype(np.uint8)
+    import cv2
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_CUBIC)
+
+
+def test_identical_windows_have_similarity_one():
+    sf = _strip_of_image(_textured(0))
+    wd = window_descriptors(sf, np.array([10, 10, 50]), np.array([24, 24, 24]), 3, 0.05)
+    assert np.isclose(hog_similarity(wd.hog[:1], wd.hog[1:2])[0, 0], 1.0, atol=1e-5)
+    assert np.isclose(color_similarity(wd.color[:1], wd.color[1:2])[0, 0], 1.0, atol=1e-6)
+
+
+def test_similarities_are_symmetric_and_bounded():
+    sf = _strip_of_image(_textured(1))
+    wd = window_descriptors(sf, np.arange(0, 150, 7), np.full(22, 24), 3, 0.05)
+    h = hog_similarity(wd.hog, wd.hog)
+    c = color_similarity(wd.color, wd.color)
+    for m in (h, c):
+        assert np.allclose(m, m.T, atol=1e-6)
+        assert m.min() >= -1e-6 and m.max() <= 1 + 1e-6
+        assert np.allclose(np.diag(m), 1.0, atol=1e-5)
+
+
+def test_same_content_elsewhere_matches_better_than_other_content():
+    """A patch copied further along the strip is found again; other texture scores lower."""
+    img = _textured(2)
+    img[:, 150:174] = img[:, 20:44]
+    sf = _strip_of_image(img)
+    ref = window_descriptors(sf, np.array([20]), np.array([24]), 3, 0.05)
+    cands = window_descriptors(sf, np.arange(60, 176, 2), np.full(58, 24), 3, 0.05)
+    sim = hog_similarity(ref.hog, cands.hog)[0]
+    assert np.arange(60, 176, 2)[np.argmax(sim)] == 150
+    assert sim.max() > 0.9 and np.median(sim) < 0.75     # the copy's borders add two edges
+
+
+def test_disjoint_colour_histograms_have_zero_iou():
+    a = np.zeros((1, 100), np.float32); a[0, 5] = 1
+    b = np.zeros((1, 100), np.float32); b[0, 77] = 1
+    assert color_similarity(a, b)[0, 0] == 0
+    half = np.zeros((1, 100), np.float32); half[0, 5] = half[0, 77] = 0.5
+    assert np.isclose(color_similarity(a, half)[0, 0], 0.5 / 1.5)
+
+
+def test_flat_patches_match_each_other():
+    """With the flat prior, two uniform patches are similar (uniform background is ambiguous)."""
+    img = np.full((40, 200, 3), 120, np.uint8)
+    sf = _strip_of_image(img)
+    wd = window_descriptors(sf, np.array([10, 100]), np.array([24, 36]), 3, 0.05)
+    assert hog_similarity(wd.hog[:1], wd.hog[1:])[0, 0] > 0.99
+
+
+def test_hog_follows_the_strip_frame():
+    """Vertical stripes seen along +x equal horizontal stripes seen along +y."""
+    x = np.arange(200)
+    vert = np.repeat(((np.sin(x / 3.0) > 0) * 200 + 20).astype(np.uint8)[None, :, None], 40, 0).repeat(3, 2)
+    sf_v = _strip_of_image(vert)
+    ch = image_channels(np.ascontiguousarray(vert.transpose(1, 0, 2)), 10)
+    ys = np.linspace(2, 37, 9)
+    xy = np.stack(np.meshgrid(np.arange(200, dtype=float), ys), axis=-1)[..., ::-1].copy()   # along +y
+    sf_h = strip_features(ch, xy, np.tile([[0.0, 1.0]], (200, 1)), np.tile([[-1.0, 0.0]], (200, 1)), 3, 9, 10)
+    a = window_descriptors(sf_v, np.array([50]), np.array([24]), 3).hog
+    b = window_descriptors(sf_h, np.array([50]), np.array([24]), 3).hog
+    assert hog_similarity(a, b)[0, 0] > 0.95

@@ -1,0 +1,53 @@
+"""Known-answer geometry on a synthetic camera pair."""
+
+import numpy as np
+
+from conftest import project
+from pipeline.geometry import (epipolar_lines, epipoles, fundamental_to_original, scale_matrix,
+                               symmetric_epipolar_distance)
+
+
+def test_true_correspondences_satisfy_F(camera_pair):
+    ref, sup, F, X = camera_pair
+    xr, xs = project(ref, X), project(sup, X)
+    assert np.max(symmetric_epipolar_distance(F, xr, xs)) < 1e-6
+
+
+def test_epipoles_are_the_other_camera_centres(camera_pair):
+    ref, sup, F, _ = camera_pair
+    e_ref, e_sup = epipoles(F)
+    assert np.allclose(F @ e_ref, 0, atol=1e-10) and np.allclose(F.T @ e_sup, 0, atol=1e-10)
+    expect_ref = project(ref, sup.C[None])[0]       # the support camera seen from the reference
+    expect_sup = project(sup, ref.C[None])[0]
+    assert np.allclose(e_ref[:2] / e_ref[2], expect_ref, atol=1e-6)
+    assert np.allclose(e_sup[:2] / e_sup[2], expect_sup, atol=1e-6)
+
+
+def test_epipolar_lines_pass_through_matches_and_epipole(camera_pair):
+    ref, sup, F, X = camera_pair
+    xr, xs = project(ref, X), project(sup, X)
+    lines = epipolar_lines(F, xr)
+    assert np.allclose(np.linalg.norm(lines[:, :2], axis=1), 1.0)
+    assert np.max(np.abs(np.sum(lines * np.column_stack([xs, np.ones(len(xs))]), axis=1))) < 1e-6
+    _, e_sup = epipoles(F)
+    assert np.max(np.abs(lines @ e_sup)) < 1e-9
+
+
+def test_a_wrong_point_is_far_from_its_line(camera_pair):
+    ref, sup, F, X = camera_pair
+    xr, xs = project(ref, X), project(sup, X)
+    d = symmetric_epipolar_distance(F, xr, xs[::-1])
+    assert np.median(d) > 10
+
+
+def test_fundamental_to_original_resolution(camera_pair):
+    """F fitted at working resolution maps to the convention at original resolution."""
+    ref, sup, F_orig, X = camera_pair
+    xr, xs = project(ref, X), project(sup, X)
+    s_r, s_s = 0.5, 0.25
+    to_work = lambda x, s: (np.column_stack([x, np.ones(len(x))]) @ scale_matrix(s).T)[:, :2]
+    # F in working coordinates: x_s_w^T F_w x_r_w = 0
+    F_work = np.linalg.inv(scale_matrix(s_s)).T @ F_orig @ np.linalg.inv(scale_matrix(s_r))
+    assert np.max(symmetric_epipolar_distance(F_work, to_work(xr, s_r), to_work(xs, s_s))) < 1e-6
+    back = fundamental_to_original(F_work, s_r, s_s)
+    assert np.max(symmetric_epipolar_distance(back, xr, xs)) < 1e-6
