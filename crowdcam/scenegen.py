@@ -47,38 +47,6 @@ def _fbm(rng, size, octaves=(4, 8, 16, 32, 64), channels=1) -> np.ndarray:
     return out / tot
 
 
-def tex_paving(rng, size=512, base=(0.55, 0.52, 0.48), n=8) -> np.ndarray:
-    img = np.zeros((size, size, 3), np.float32)
-    cell = size // n
-    for r in range(n):
-        off = (cell // 2) * (r % 2)
-        for c in range(n + 1):
-            col = np.array(base) * rng.uniform(0.75, 1.2) + rng.normal(0, 0.015, 3)
-            x0 = (c * cell + off) % size
-            xs = (np.arange(x0, x0 + cell) % size)
-            img[r * cell:(r + 1) * cell][:, xs] = col
-    joints = np.ones((size, size), np.float32)
-    for r in range(n):
-        joints[r * cell:r * cell + 3, :] = 0.45
-        off = (cell // 2) * (r % 2)
-        for c in range(n + 1):
-            x0 = (c * cell + off) % size
-            joints[r * cell:(r + 1) * cell, x0:x0 + 3] = 0.45
-    img *= joints[..., None]
-    img *= 0.75 + 0.5 * _fbm(rng, size, (8, 32, 128))
-    return np.clip(img, 0, 1)
-
-
-def tex_bricks(rng, size=512, base=(0.62, 0.3, 0.22), graffiti: bool = True) -> np.ndarray:
-    img = tex_paving(rng, size, base, n=16)
-    if graffiti:
-        for _ in range(12):
-            pts = np.cumsum(rng.normal(0, size / 25, (8, 2)), axis=0) + rng.integers(0, size, 2)
-            cv2.polylines(img, [pts.astype(np.int32)], False, (rng.random(3)).tolist(), int(rng.integers(3, 9)),
-                          cv2.LINE_AA)
-    return img
-
-
 def tex_wood(rng, size=512, base=(0.55, 0.36, 0.2)) -> np.ndarray:
     n = _fbm(rng, size, (4, 16, 64))[..., 0]
     y = np.arange(size)[:, None] / size
@@ -157,6 +125,40 @@ def tex_foliage(rng, size=256) -> np.ndarray:
     return np.clip(np.array([0.18, 0.38, 0.12]) * (0.5 + 1.0 * n), 0, 1).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class Stones:
+    """A non-periodic running-bond pattern in world units (metres): every stone gets its own
+    shade from a hash of its row and column, and a fine noise texture adds grain. Real paving and
+    brick walls repeat a shape, never an exact image; exact texture tiling made SIFT match the
+    wrong tile and broke the geometry, which is not what a CrowdCam set looks like."""
+    size: tuple[float, float]
+    base: tuple[float, float, float]
+    grain: np.ndarray
+    seed: float
+    joint: float = 0.06
+    var: float = 0.45
+
+    def __call__(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        su, sv = self.size
+        row = np.floor(v / sv)
+        off = 0.5 * su * (row % 2)
+        col = np.floor((u + off) / su)
+
+        def h(k):
+            return np.mod(np.sin(row * 12.9898 + col * 78.233 + self.seed * 3.7 + k * 19.19) * 43758.5453, 1.0)
+        shade = (1 - self.var / 2) + self.var * h(0)
+        tint = 1 + 0.08 * (np.stack([h(1), h(2), h(3)], axis=1) - 0.5)
+        fu, fv = np.mod((u + off) / su, 1.0), np.mod(v / sv, 1.0)
+        jt = self.joint
+        joint = np.where((fu < jt * sv / su) | (fv < jt), 0.45, 1.0)
+        grain = _sample(self.grain, u / 1.7, v / 1.7)
+        return np.array(self.base) * (shade * joint)[:, None] * tint * (0.7 + 0.6 * grain)
+
+
+def stones(rng, size, base, var=0.45, joint=0.06) -> Stones:
+    return Stones(size, base, _fbm(rng, 256, (8, 32, 64), 3), float(rng.uniform(0, 100)), joint, var)
+
+
 def tex_plain(rng, color, size=64, var=0.2) -> np.ndarray:
     return np.clip(np.array(color) * (1 - var / 2 + var * _fbm(rng, size, (4, 16))), 0, 1).astype(np.float32)
 
@@ -169,8 +171,12 @@ class Quad:
     eu: np.ndarray
     ev: np.ndarray
     tex: str
-    tile: float = 1.0
+    tile: float | tuple[float, float] = 1.0
     moving: bool = False
+
+    @property
+    def tiles(self) -> tuple[float, float]:
+        return self.tile if isinstance(self.tile, tuple) else (self.tile, self.tile)
 
 
 @dataclass
@@ -281,8 +287,11 @@ def _roll(R, a):
     return Rr @ R
 
 
-def _sample(tex: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear, wrapping texture lookup at texture coordinates (u, v) in tiles."""
+def _sample(tex, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear, wrapping texture lookup at texture coordinates (u, v) in tiles; a callable
+    texture (procedural, in metres) is evaluated directly."""
+    if callable(tex):
+        return tex(u, v)
     th, tw = tex.shape[:2]
     x = np.mod(u, 1.0) * tw - 0.5
     y = np.mod(v, 1.0) * th - 0.5
@@ -307,7 +316,8 @@ def _intersect(prim, o, d):
         b = rel @ prim.ev / (prim.ev @ prim.ev)
         hit = (t > 1e-4) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & np.isfinite(t)
         t = np.where(hit, t, np.inf)
-        uv = (a * np.linalg.norm(prim.eu) / prim.tile, b * np.linalg.norm(prim.ev) / prim.tile)
+        tu, tv = prim.tiles
+        uv = (a * np.linalg.norm(prim.eu) / tu, b * np.linalg.norm(prim.ev) / tv)
         normal = np.broadcast_to(n, (n_rays, 3))
         return t, uv, normal
     # ellipsoid: into unit-sphere space (all rays share the camera centre o)
@@ -436,10 +446,13 @@ class SetSpec:
 
 
 def _square_textures(rng) -> dict:
-    return {"paving": tex_paving(rng), "facade_a": tex_facade(rng, wall=(0.82, 0.74, 0.6)),
-            "facade_b": tex_facade(rng, wall=(0.7, 0.75, 0.8), floors=5, bays=4),
-            "facade_c": tex_facade(rng, wall=(0.85, 0.62, 0.5), floors=3, bays=6),
-            "bricks": tex_bricks(rng), "posters": tex_posters(rng), "wood": tex_wood(rng),
+    return {"paving": stones(rng, (0.6, 0.4), (0.55, 0.52, 0.48)),
+            "facade_a": tex_facade(rng, 1024, wall=(0.82, 0.74, 0.6), floors=4, bays=5),
+            "facade_b": tex_facade(rng, 1024, wall=(0.7, 0.75, 0.8), floors=3, bays=5),
+            "facade_c": tex_facade(rng, 1024, wall=(0.85, 0.62, 0.5), floors=3, bays=14),
+            "bricks": _graffiti(rng, 2048, stones(rng, (0.25, 0.07), (0.62, 0.3, 0.22), var=0.35, joint=0.12),
+                                (34.0, 8.0)),
+            "posters": tex_posters(rng, 1024), "wood": tex_wood(rng),
             "bark": tex_plain(rng, (0.35, 0.25, 0.18), var=0.5), "foliage": tex_foliage(rng),
             "skin": tex_plain(rng, (0.85, 0.65, 0.5), var=0.1),
             "metal": tex_plain(rng, (0.3, 0.32, 0.35), var=0.3)}
@@ -447,12 +460,12 @@ def _square_textures(rng) -> dict:
 
 def _square_static(scene: Scene) -> None:
     """A town square: paving, three facades, a kiosk, benches, trees."""
-    scene.quad([-20, -20, 0], [40, 0, 0], [0, 40, 0], "paving", tile=4.0)
-    scene.quad([-14, 14, 0], [14, 0, 0], [0, 0, 12], "facade_a", tile=12.0)
-    scene.quad([0, 14, 0], [14, 0, 0], [0, 0, 10], "facade_b", tile=10.0)
-    scene.quad([-14, -20, 0], [0, 34, 0], [0, 0, 9], "facade_c", tile=9.0)
-    scene.quad([14, 14, 0], [0, -34, 0], [0, 0, 8], "bricks", tile=3.0)
-    scene.box([3.5, 7.0, 0], (2.5, 2.0, 2.6), 0.3, "posters", tile=2.5, top_tex="metal")
+    scene.quad([-20, -20, 0], [40, 0, 0], [0, 40, 0], "paving", tile=1.0)
+    scene.quad([-14, 14, 0], [14, 0, 0], [0, 0, 12], "facade_a", tile=(14.0, 12.0))
+    scene.quad([0, 14, 0], [14, 0, 0], [0, 0, 10], "facade_b", tile=(14.0, 10.0))
+    scene.quad([-14, -20, 0], [0, 34, 0], [0, 0, 9], "facade_c", tile=(34.0, 9.0))
+    scene.quad([14, 14, 0], [0, -34, 0], [0, 0, 8], "bricks", tile=(34.0, 8.0))
+    scene.box([3.5, 7.0, 0], (2.5, 2.0, 2.6), 0.3, "posters", tile=9.0, top_tex="metal")
     scene.box([-5, 8, 0], (2.0, 0.5, 0.45), 0.0, "wood", tile=1.0)
     scene.box([6.5, 1.0, 0], (0.5, 2.0, 0.45), 0.2, "wood", tile=1.0)
     add_tree(scene, (-8.5, 4.0))
@@ -518,20 +531,23 @@ def build_courtyard_static(rng):
 
 
 def build_tabletop_ball(rng):
-    tex = {"floor": tex_wood(rng, base=(0.45, 0.3, 0.2)), "wall_a": tex_posters(rng),
-           "wall_b": tex_bricks(rng, base=(0.7, 0.45, 0.35)), "wall_c": tex_facade(rng, wall=(0.9, 0.88, 0.8)),
-           "table": tex_posters(rng, background=(0.92, 0.9, 0.82)), "wood": tex_wood(rng),
+    tex = {"floor": stones(rng, (1.2, 0.16), (0.45, 0.3, 0.2), var=0.5, joint=0.05),
+           "wall_a": tex_posters(rng, 1024),
+           "wall_b": _graffiti(rng, 1024, stones(rng, (0.25, 0.07), (0.7, 0.45, 0.35), var=0.35, joint=0.12),
+                               (6.0, 3.0)),
+           "wall_c": tex_facade(rng, 1024, wall=(0.9, 0.88, 0.8), floors=3, bays=6),
+           "table": tex_posters(rng, 1024, background=(0.92, 0.9, 0.82)), "wood": tex_wood(rng),
            "ball": tex_ball(rng), "book_a": tex_cloth(rng, color=(0.2, 0.3, 0.7), stripes=True),
            "book_b": tex_cloth(rng, color=(0.7, 0.2, 0.2)), "mug": tex_plain(rng, (0.9, 0.9, 0.85), var=0.1),
            "toy": tex_cloth(rng, color=(0.9, 0.6, 0.1), stripes=True)}
 
     def scene_at(t):
         s = Scene(textures=tex, sun=_unit(np.array([-0.3, -0.5, 0.8])))
-        s.quad([-3, -3, 0], [6, 0, 0], [0, 6, 0], "floor", tile=1.5)
-        s.quad([-3, 3, 0], [6, 0, 0], [0, 0, 3], "wall_a", tile=1.5)
-        s.quad([-3, -3, 0], [0, 6, 0], [0, 0, 3], "wall_b", tile=1.2)
-        s.quad([3, 3, 0], [0, -6, 0], [0, 0, 3], "wall_c", tile=3.0)
-        s.box([0, 0, 0], (1.6, 0.9, 0.74), 0.0, "wood", tile=0.8, top_tex="table")
+        s.quad([-3, -3, 0], [6, 0, 0], [0, 6, 0], "floor", tile=1.0)
+        s.quad([-3, 3, 0], [6, 0, 0], [0, 0, 3], "wall_a", tile=(6.0, 3.0))
+        s.quad([-3, -3, 0], [0, 6, 0], [0, 0, 3], "wall_b", tile=(6.0, 3.0))
+        s.quad([3, 3, 0], [0, -6, 0], [0, 0, 3], "wall_c", tile=(6.0, 3.0))
+        s.box([0, 0, 0], (1.6, 0.9, 0.74), 0.0, "wood", tile=1.6, top_tex="table")
         s.box([-0.5, 0.25, 0.74], (0.24, 0.17, 0.05), 0.3, "book_a", tile=0.3)
         s.box([0.55, -0.2, 0.74], (0.2, 0.15, 0.04), -0.5, "book_b", tile=0.3)
         s.ellipsoid([0.45, 0.28, 0.80], np.eye(3), np.array([0.045, 0.045, 0.06]), "mug")

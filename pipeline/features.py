@@ -21,10 +21,10 @@ class Features:
     desc: np.ndarray
 
 
-def detect(rgb: np.ndarray, n_features: int) -> Features:
+def detect(rgb: np.ndarray, n_features: int, contrast: float = 0.04) -> Features:
     """SIFT on (h, w, 3) uint8 RGB. Descriptors are RootSIFT (Arandjelovic & Zisserman 2012)."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    sift = cv2.SIFT_create(nfeatures=n_features)
+    sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=contrast)
     kps, desc = sift.detectAndCompute(gray, None)
     if desc is None or len(kps) == 0:
         return Features(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros((0, 128), np.float32))
@@ -35,23 +35,44 @@ def detect(rgb: np.ndarray, n_features: int) -> Features:
     return Features(xy, size, desc)
 
 
+def _two_nearest(a: np.ndarray, b: np.ndarray, chunk: int = 2048):
+    """For unit-norm descriptors a (Na, D) and b (Nb, D): per row of a and per row of b, the index
+    of the nearest neighbour in the other set and the distances to the two nearest.
+
+    Returns squared distances (2 - 2 a.b); rows are processed in chunks so memory stays O(chunk * Nb).
+    """
+    na, nb = len(a), len(b)
+    row_best = np.zeros(na, np.int64)
+    row_d = np.zeros((na, 2), np.float32)
+    col_d = np.full((nb, 2), np.inf, np.float32)      # two smallest distances per column so far
+    col_best = np.zeros(nb, np.int64)
+    for s in range(0, na, chunk):
+        d = 2.0 - 2.0 * (a[s:s + chunk] @ b.T)          # (c, Nb) squared distances
+        two = np.partition(d, 1, axis=1)[:, :2]
+        row_d[s:s + chunk] = two
+        row_best[s:s + chunk] = np.argmin(d, axis=1)
+        # merge this chunk's two smallest per column with the running two smallest
+        if d.shape[0] >= 2:
+            part = np.partition(d, 1, axis=0)[:2]                              # part[0] <= part[1]
+        else:
+            part = np.concatenate([d, np.full((1, nb), np.inf, np.float32)])
+        best_here = np.argmin(d, axis=0) + s
+        col_best = np.where(part[0] < col_d[:, 0], best_here, col_best)
+        col_d = np.sort(np.concatenate([col_d, part.T], axis=1), axis=1)[:, :2]
+    return row_best, row_d, col_best, col_d
+
+
 def match(a: Features, b: Features, ratio: float) -> np.ndarray:
     """Mutual nearest neighbours that pass the ratio test in both directions.
 
-    RootSIFT descriptors have unit L2 norm, so squared distances are 2 - 2 a.b and one
-    matrix product gives both directions' two nearest neighbours.
     Returns (M, 2) int64 indices into a and b.
     """
     if len(a.xy) < 2 or len(b.xy) < 2:
         return np.zeros((0, 2), np.int64)
-    dist = np.sqrt(np.maximum(2.0 - 2.0 * (a.desc @ b.desc.T), 0.0))     # (Na, Nb)
-
-    def one_way(d: np.ndarray) -> np.ndarray:
-        two = np.partition(d, 1, axis=1)[:, :2]
-        best = np.argmin(d, axis=1)
-        return np.where(two[:, 0] < ratio * two[:, 1], best, -1)
-
-    ab, ba = one_way(dist), one_way(dist.T)
+    row_best, row_d, col_best, col_d = _two_nearest(a.desc, b.desc)
+    r2 = ratio * ratio                     # the ratio test on squared distances
+    ab = np.where(row_d[:, 0] < r2 * row_d[:, 1], row_best, -1)
+    ba = np.where(col_d[:, 0] < r2 * col_d[:, 1], col_best, -1)
     ia = np.nonzero(ab >= 0)[0]
     ib = ab[ia]
     keep = ba[ib] == ia

@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 class GeometryParams:
     """Features, fundamental matrices and the support-set test (§3, "Implementation details")."""
 
-    sift_features: int = 4000          # ours: SIFT keypoints per image at working resolution
+    sift_features: int = 8000          # ours: SIFT keypoints per image at working resolution
+    sift_contrast: float = 0.02        # ours: SIFT contrast threshold (OpenCV default 0.04 finds too few
+                                       # keypoints on low-contrast surfaces: half the pairs lacked matches)
     ratio: float = 0.8                 # Lowe's ratio test, applied both ways, mutual matches only
     ransac_px: float = 1.5             # MAGSAC++ threshold in working-resolution pixels
     min_inliers: int = 40              # a pair needs at least this many F inliers

@@ -75,7 +75,8 @@ def _channels(i: int):
 
 
 def _task_features(i: int) -> tuple[int, Features]:
-    return i, detect(_W["rgbs"][i], _W["params"].geometry.sift_features)
+    gp = _W["params"].geometry
+    return i, detect(_W["rgbs"][i], gp.sift_features, gp.sift_contrast)
 
 
 def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[int, int], bytes]:

@@ -1,0 +1,33 @@
+# Two commands on a fresh clone:
+#   make demo   set up and run `crowdcam detect` on a bundled sample set
+#   make test   set up and run the test suite (what .ci/run runs)
+PYTHON ?= python3
+VENV   ?= .venv
+PY      = $(VENV)/bin/python
+SET    ?= sample_sets/square_people
+
+.PHONY: setup demo test bench samples clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[test]"
+	touch $@
+
+setup: $(VENV)/.installed
+
+demo: setup
+	$(VENV)/bin/crowdcam detect $(SET)
+	@echo "maps, masks and overlays are in crowdcam-out/$(notdir $(SET))/"
+
+test: setup
+	$(PY) -m pytest -q
+
+bench: setup
+	$(VENV)/bin/crowdcam bench
+
+samples: setup
+	$(VENV)/bin/crowdcam make-samples
+
+clean:
+	rm -rf crowdcam-out .pytest_cache

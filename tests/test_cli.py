@@ -1,0 +1,226 @@
+"""The `crowdcam` command end to end: outputs, F convention, cache, eval, bad input."""
+
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import ROOT, SAMPLE_SETS
+from crowdcam.cli import main
+from pipeline.geometry import symmetric_epipolar_distance
+
+SET = SAMPLE_SETS / "tabletop_ball"
+
+
+def run_cli(*args, cache=None):
+    cmd = [sys.executable, "-m", "crowdcam", *map(str, args)]
+    if cache is not None:
+        cmd += ["--cache-dir", str(cache)]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
+
+
+def tree_digest(folder: Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        h.update(str(p.relative_to(folder)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+            h.update(str(p.stat().st_mtime_ns).encode())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def detected(tmp_path_factory):
+    """One detect run on a bundled set (small working size) shared by the tests below."""
+    tmp = tmp_path_factory.mktemp("detect")
+    before = tree_digest(SET)
+    out, cache = tmp / "out", tmp / "cache"
+    r = run_cli("detect", SET, "--out", out, "--max-side", 320, "--quiet", cache=cache)
+    assert r.returncode == 0, r.stderr
+    return out, cache, before, r
+
+
+def test_outputs_layout(detected):
+    out, _, _, _ = detected
+    summary = json.loads((out / "summary.json").read_text())
+    cams = json.loads((SET / "cameras.json").read_text())["cameras"]
+    for cam in cams:
+        if not next(im for im in summary["images"] if im["stem"] == cam["stem"])["has_map"]:
+            continue
+        h, w = cam["size"]
+        m = np.load(out / "maps" / f"{cam['stem']}.npy")
+        assert m.dtype == np.float32 and m.shape == (h, w) and 0 <= m.min() and m.max() <= 1
+        mask = cv2.imread(str(out / "masks" / f"{cam['stem']}.png"), cv2.IMREAD_UNCHANGED)
+        assert mask.shape == (h, w) and set(np.unique(mask)) <= {0, 255}
+        assert (mask > 0).sum() == (m > summary["threshold"]).sum()
+        assert cv2.imread(str(out / "overlays" / f"{cam['stem']}.jpg")).shape == (h, w, 3)
+    assert summary["parameters"]["preset"] == "paper"
+    assert {"geometry_s", "pairs_s", "total_s"} <= set(summary["timings"])
+    p = summary["pairs"][0]
+    assert {"ref", "sup", "F", "n_inliers", "status", "reason"} <= set(p)
+    assert all(q["reason"] for q in summary["pairs"] if q["status"] != "ok")
+    assert not list(out.parent.glob(".out.partial-*"))
+
+
+def test_fundamental_matrices_follow_the_convention(detected):
+    """x_sup^T F x_ref = 0 in original pixels, checked with the renderer's true cameras.
+
+    A wrong convention (F transposed, working-resolution coordinates) is off by tens of pixels
+    everywhere; estimation error on admitted pairs is a few pixels."""
+    out, _, _, _ = detected
+    summary = json.loads((out / "summary.json").read_text())
+    cams = {c["stem"]: c for c in json.loads((SET / "cameras.json").read_text())["cameras"]}
+    rng = np.random.default_rng(0)
+    errs, errs_t = [], []
+    for p in summary["pairs"]:
+        if p["status"] != "ok":
+            continue
+        a, b = cams[p["ref"]], cams[p["sup"]]
+        Ka, Ra, Ca = (np.array(a[k]) for k in ("K", "R", "C"))
+        Kb, Rb, Cb = (np.array(b[k]) for k in ("K", "R", "C"))
+        # scene points in front of the reference camera, 1.5-3 m away (the table), seen by both
+        x = np.column_stack([rng.uniform(0, a["size"][1], 400), rng.uniform(0, a["size"][0], 400), np.ones(400)])
+        X = Ca + (x @ np.linalg.inv(Ka).T @ Ra) * rng.uniform(1.5, 3.0, (400, 1))
+        xb = (X - Cb) @ Rb.T @ Kb.T
+        xb = xb[:, :2] / xb[:, 2:3]
+        vis = (xb[:, 0] >= 0) & (xb[:, 0] < b["size"][1]) & (xb[:, 1] >= 0) & (xb[:, 1] < b["size"][0])
+        F = np.array(p["F"])
+        errs.append(np.median(symmetric_epipolar_distance(F, x[vis, :2], xb[vis])))
+        errs_t.append(np.median(symmetric_epipolar_distance(F.T, x[vis, :2], xb[vis])))
+    assert len(errs) >= 3
+    diag = np.hypot(*cams[summary["pairs"][0]["ref"]]["size"])
+    assert np.median(errs) < 0.01 * diag and min(errs) < 3.0, errs
+    assert np.mean(np.array(errs) < np.array(errs_t)) > 0.8
+
+
+def test_moving_ball_stands_out(detected):
+    """Quality floor: where the ball is, P_dynamic is higher than on the static scene."""
+    out, _, _, _ = detected
+    summary = json.loads((out / "summary.json").read_text())
+    ev = summary["evaluation"]
+    assert ev["n_with_motion"] >= 5 and ev["mean_opt_image"] > 0.05
+    lifts = []
+    for im in summary["images"]:
+        if not im["has_map"]:
+            continue
+        m = np.load(out / "maps" / f"{im['stem']}.npy")
+        gt = cv2.imread(str(SET / "gt" / f"{im['stem']}.png"), cv2.IMREAD_GRAYSCALE)
+        if (gt == 255).any():
+            lifts.append(m[gt == 255].mean() - m[gt == 0].mean())
+    assert np.median(lifts) > 0.05
+
+
+def test_input_is_untouched_and_cache_is_reused(detected, tmp_path):
+    out, cache, before, _ = detected
+    assert tree_digest(SET) == before
+    r = run_cli("detect", SET, "--out", tmp_path / "again", "--max-side", 320, cache=cache)
+    assert r.returncode == 0, r.stderr
+    s1 = json.loads((out / "summary.json").read_text())
+    s2 = json.loads((tmp_path / "again" / "summary.json").read_text())
+    assert s2["cache"]["misses"] == 0 and s2["cache"]["hits"] > 0
+    for im in s1["images"]:
+        if im["has_map"]:
+            assert np.array_equal(np.load(out / "maps" / f"{im['stem']}.npy"),
+                                  np.load(tmp_path / "again" / "maps" / f"{im['stem']}.npy"))
+
+
+def test_eval_prints_the_table_row(detected):
+    out, _, _, _ = detected
+    r = run_cli("eval", out)
+    assert r.returncode == 0, r.stderr
+    assert "Jaccard opt. per image" in r.stdout and "opt. per set" in r.stdout
+    res = json.loads((out / "eval.json").read_text())
+    assert 0 <= res["mean_opt_set"] <= res["mean_opt_image"] <= 1
+
+
+def _noise_images(folder: Path, n: int, seed: int = 0):
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        cv2.imwrite(str(folder / f"n{i}.png"), (rng.random((96, 128, 3)) * 255).astype(np.uint8))
+
+
+@pytest.mark.parametrize("case,expect", [
+    ("missing", "no such folder"),
+    ("empty", "no images found"),
+    ("one_image", "fewer than two usable images"),
+    ("no_geometry", "no pair of photos has trustworthy geometry"),
+    ("out_inside_input", "must not be inside the input folder"),
+])
+def test_bad_input_gives_one_line_error(tmp_path, case, expect):
+    d = tmp_path / "set"
+    args = ["detect", d, "--workers", "1", "--no-cache"]
+    if case == "empty":
+        d.mkdir()
+    elif case == "one_image":
+        shutil.copytree(SET / "images", d)
+        for p in sorted(d.iterdir())[1:]:
+            p.write_bytes(b"corrupt")
+    elif case == "no_geometry":
+        _noise_images(d, 3)
+    elif case == "out_inside_input":
+        shutil.copytree(SET / "images", d)
+        args += ["--out", d / "results"]
+    out_default = tmp_path / "crowdcam-out"
+    r = subprocess.run([sys.executable, "-m", "crowdcam", *map(str, args)], capture_output=True, text=True,
+                       cwd=tmp_path, timeout=300)
+    assert r.returncode == 2
+    lines = [l for l in r.stderr.splitlines() if l.startswith("crowdcam: error")]
+    assert len(lines) == 1 and expect in lines[0], r.stderr
+    assert "Traceback" not in r.stderr
+    assert not out_default.exists() and not (d / "results").exists()
+
+
+def test_warnings_name_the_skipped_files(tmp_path):
+    d = tmp_path / "set"
+    shutil.copytree(SET / "images", d)
+    (d / "readme.txt").write_text("not a photo")
+    (d / "zz_broken.jpg").write_bytes(b"\xff\xd8 broken")
+    r = run_cli("detect", d, "--out", tmp_path / "out", "--max-side", 200, "--no-cache")
+    assert r.returncode == 0, r.stderr
+    assert "readme.txt: skipped" in r.stderr and "zz_broken.jpg: not a readable image" in r.stderr
+
+
+def test_failed_write_leaves_no_partial_output(tmp_path, monkeypatch):
+    import pipeline.output as output
+    d = tmp_path / "set"
+    shutil.copytree(SET / "images", d)
+    calls = {"n": 0}
+    real = output.heat_overlay
+
+    def flaky(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 2:          # after the first photo's files are written
+            raise OSError(28, "No space left on device")
+        return real(*a, **k)
+    monkeypatch.setattr(output, "heat_overlay", flaky)
+    rc = main(["detect", str(d), "--out", str(tmp_path / "out"), "--max-side", "240", "--workers", "1",
+               "--no-cache", "--quiet"])
+    assert rc == 1
+    assert not (tmp_path / "out").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]
+
+
+def test_huge_photo_is_downscaled(tmp_path):
+    """A 6000x4000 phone photo works: maps come back at full size."""
+    d = tmp_path / "set"
+    d.mkdir()
+    imgs = sorted((SET / "images").iterdir())[:3]
+    for k, p in enumerate(imgs):
+        img = cv2.imread(str(p))
+        if k == 0:
+            img = cv2.resize(img, (6000, 4000), interpolation=cv2.INTER_LINEAR)
+        cv2.imwrite(str(d / p.name), img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    r = run_cli("detect", d, "--out", tmp_path / "out", "--max-side", 240, "--no-cache", "--workers", "1")
+    assert r.returncode == 0, r.stderr
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    big = s["images"][0]
+    assert big["size"] == [4000, 6000] and max(big["working_size"]) == 240
+    if big["has_map"]:
+        assert np.load(tmp_path / "out" / "maps" / f"{big['stem']}.npy", mmap_mode="r").shape == (4000, 6000)
