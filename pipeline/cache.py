@@ -19,7 +19,7 @@ import numpy as np
 
 from .params import digest
 
-CODE_VERSION = "3"      # bump when a change alters per-pair results
+CODE_VERSION = "4"      # bump when a change alters per-pair results
 
 
 def default_cache_dir() -> Path:
@@ -50,6 +50,8 @@ def _unflatten(cls: type, prefix: str, arrays: dict, meta: dict) -> Any:
         key = f"{prefix}{f.name}"
         if key in arrays:
             kwargs[f.name] = arrays[key]
+        elif key not in meta:
+            continue                      # a field with a default, absent from older entries
         elif isinstance(meta.get(key), dict) and meta[key].get("__dataclass__"):
             kwargs[f.name] = _unflatten(_resolve(cls, hints[f.name]), key + ".", arrays, meta)
         else:

@@ -56,6 +56,8 @@ class PairResult:
     hog_map, color_map: (h, w) float32, Eq. 2 weighted average of the raw confidences of the
     covering patches that had candidates (NaN where none had);
     evidence: (h, w) float32 in [0, 1], share of the Eq. 2 weight from patches with candidates.
+    kind: "epipolar" (strips and segments describe the patches) or "homography" (patches are a
+    block grid, strip/start in the table are block row/column, H maps reference to support).
     """
 
     ref: int
@@ -64,10 +66,12 @@ class PairResult:
     color_map: np.ndarray
     evidence: np.ndarray
     patches: PatchTable
-    strips: RefStrips
-    segments: SupportSegments
+    strips: RefStrips | None
+    segments: SupportSegments | None
     sigma: float
     seconds: float
+    kind: str = "epipolar"
+    H: np.ndarray | None = None
 
 
 def patch_length(params: Params) -> int:

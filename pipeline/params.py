@@ -26,6 +26,7 @@ class GeometryParams:
     min_spread: float = 0.12           # inlier convex hull / image area, in both images
     max_homography_share: float = 0.85  # if one homography explains this share of the F inliers, F is degenerate
     max_instability_px: float = 3.0    # median epipolar distance of inliers under an F re-fitted on half the data
+    homography_pairs: bool = False     # paper: drop degenerate pairs; default: keep them as homography pairs
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,7 @@ class PatchParams:
     scale_from_features: bool = False  # centre candidate widths on the pair's SIFT scale ratio
     min_valid_ref: float = 1 / 3       # a reference patch needs this share of its samples in view
     min_valid_candidate: float = 2 / 3  # a candidate needs this share of its samples in view
+    homography_search: int = 1         # homography pairs: search +-this many blocks (patch / 3) for parallax
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,13 @@ def digest(text: str) -> str:
 
 PRESETS: dict[str, Params] = {
     "paper": Params(preset="paper"),
+    # Ours (issue 5, in progress): departures are listed in the README with their measured effect.
+    "default": Params(
+        preset="default",
+        geometry=GeometryParams(homography_pairs=True),
+        descriptors=DescriptorParams(norm_percentile=1.0),
+        aggregate=AggregateParams(no_evidence="neutral"),
+    ),
 }
 
 

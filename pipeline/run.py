@@ -20,6 +20,7 @@ from .aggregate import Normaliser, combine, match_probability
 from .descriptors import image_channels
 from .features import Features, detect
 from .loading import InputError, PhotoSet
+from .homography import match_pair_homography
 from .matching import PairResult, match_pair
 from .params import Params
 from .support import PairGeometry, estimate_pair, support_sets
@@ -85,8 +86,11 @@ def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[in
     return (i, j), cache_mod.to_bytes(g)
 
 
-def _task_pair(i: int, j: int, F: np.ndarray, scale: float) -> tuple[tuple[int, int], bytes]:
-    r = match_pair(i, j, _channels(i), _channels(j), F, scale, _W["params"])
+def _task_pair(i: int, j: int, F: np.ndarray, scale: float, H: np.ndarray | None) -> tuple[tuple[int, int], bytes]:
+    if H is not None:
+        r = match_pair_homography(i, j, _W["rgbs"][i], _W["rgbs"][j], H, _W["params"])
+    else:
+        r = match_pair(i, j, _channels(i), _channels(j), F, scale, _W["params"])
     return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
 
 
@@ -220,7 +224,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
-        runner.map(_task_pair, [(i, j, pairs[(i, j)].F, pairs[(i, j)].scale) for i, j in todo], got_pair)
+        runner.map(_task_pair, [(i, j, pairs[(i, j)].F, pairs[(i, j)].scale, pairs[(i, j)].H) for i, j in todo],
+                   got_pair)
         timings["pairs_s"] = time.perf_counter() - t1
     finally:
         runner.close()

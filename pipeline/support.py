@@ -26,7 +26,8 @@ from .features import Features, match
 from .geometry import convex_hull_share, symmetric_epipolar_distance
 from .params import GeometryParams
 
-OK = "ok"
+OK = "ok"                     # epipolar pair: F is trustworthy
+HOMOGRAPHY = "homography"     # homography pair: one H explains the static scene (default preset only)
 REJECTED = "rejected"
 
 
@@ -35,6 +36,7 @@ class PairGeometry:
     """Geometry of an ordered pair (ref, sup) at working resolution.
 
     F: (3, 3) float64 with x_sup^T F x_ref = 0, or None when no F could be fitted.
+    H: (3, 3) float64 with x_sup ~ H x_ref for homography pairs, else None.
     inliers_ref / inliers_sup: (K, 2) float32 matched inlier positions; outliers_*: the rest.
     scale: median ratio of SIFT sizes sup/ref over inliers (the pair's relative zoom).
     """
@@ -54,10 +56,16 @@ class PairGeometry:
     inliers_sup: np.ndarray
     outliers_ref: np.ndarray
     outliers_sup: np.ndarray
+    H: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
-        return self.status == OK
+        """The pair joins the support set (as an epipolar or a homography pair)."""
+        return self.status in (OK, HOMOGRAPHY)
+
+    @property
+    def is_homography(self) -> bool:
+        return self.status == HOMOGRAPHY
 
     def reversed(self) -> "PairGeometry":
         """The same pair seen from the other image: F -> F^T, roles swapped."""
@@ -67,7 +75,8 @@ class PairGeometry:
             homography_share=self.homography_share, instability_px=self.instability_px,
             scale=1.0 / self.scale if self.scale > 0 else self.scale,
             inliers_ref=self.inliers_sup, inliers_sup=self.inliers_ref,
-            outliers_ref=self.outliers_sup, outliers_sup=self.outliers_ref)
+            outliers_ref=self.outliers_sup, outliers_sup=self.outliers_ref,
+            H=None if self.H is None else np.linalg.inv(self.H))
 
     def summary(self) -> dict:
         return {"ref": self.ref, "sup": self.sup, "status": self.status, "reason": self.reason,
@@ -94,10 +103,10 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     p_sup = fj.xy[m[:, 1]].astype(np.float32)
     empty = np.zeros((0, 2), np.float32)
 
-    def result(F, status, reason, inl=None, spread=0.0, hshare=0.0, instab=0.0, scale=1.0):
+    def result(F, status, reason, inl=None, spread=0.0, hshare=0.0, instab=0.0, scale=1.0, H=None):
         inl = np.zeros(len(m), bool) if inl is None else inl
         return PairGeometry(i, j, F, status, reason, len(m), int(inl.sum()), spread, hshare, instab, scale,
-                            p_ref[inl], p_sup[inl], p_ref[~inl], p_sup[~inl])
+                            p_ref[inl], p_sup[inl], p_ref[~inl], p_sup[~inl], H)
 
     if len(m) < max(8, p.min_inliers):
         return result(None, REJECTED, f"too few feature matches ({len(m)} < {max(8, p.min_inliers)})")
@@ -115,6 +124,8 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     # Degeneracy: does one homography explain (almost) all F inliers?
     H, hmask = cv2.findHomography(p_ref[inl], p_sup[inl], cv2.USAC_MAGSAC, p.ransac_px * 2.0, None, 10000, 0.9999)
     hshare = float(hmask.sum()) / n_in if H is not None else 0.0
+    if hshare >= p.max_homography_share and p.homography_pairs:
+        return _homography_pair(i, j, F, p_ref, p_sup, size_i, size_j, scale, hshare, p, result)
     if hshare >= p.max_homography_share:
         return result(F, REJECTED, f"degenerate: one homography explains {hshare:.0%} of the inliers "
                       "(dominant plane, pure rotation or no baseline)", inl, spread, hshare, scale=scale)
@@ -131,6 +142,23 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
         return result(F, REJECTED, f"unstable: F refitted on half the matches moves inliers by "
                       f"{instab:.1f} px (> {p.max_instability_px} px)", inl, spread, hshare, instab, scale)
     return result(F, OK, "", inl, spread, hshare, instab, scale)
+
+
+def _homography_pair(i, j, F, p_ref, p_sup, size_i, size_j, scale, hshare, p: GeometryParams, result):
+    """Departure (default preset): a pair whose static scene one homography explains (same spot,
+    pure rotation, distant or planar scene) is kept as a homography pair instead of dropped.
+    Its epipolar strip collapses to the point H gives, which makes it the most informative kind."""
+    H, hmask = cv2.findHomography(p_ref, p_sup, cv2.USAC_MAGSAC, p.ransac_px * 2.0, None, 10000, 0.9999)
+    if H is None:
+        return result(F, REJECTED, "degenerate F and no homography could be fitted", hshare=hshare, scale=scale)
+    inl = hmask.ravel().astype(bool)
+    n_in = int(inl.sum())
+    spread = min(convex_hull_share(p_ref[inl], size_i), convex_hull_share(p_sup[inl], size_j))
+    if n_in < p.min_inliers or spread < p.min_spread:
+        return result(F, REJECTED, f"degenerate F, and the homography has {n_in} inliers covering {spread:.0%}",
+                      inl, spread, hshare, scale=scale)
+    return result(F, HOMOGRAPHY, f"homography pair: one homography explains {hshare:.0%} of the inliers",
+                  inl, spread, hshare, scale=scale, H=H / H[2, 2])
 
 
 def support_sets(pairs: dict[tuple[int, int], PairGeometry], n: int) -> list[list[int]]:

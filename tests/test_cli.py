@@ -224,3 +224,30 @@ def test_huge_photo_is_downscaled(tmp_path):
     assert big["size"] == [4000, 6000] and max(big["working_size"]) == 240
     if big["has_map"]:
         assert np.load(tmp_path / "out" / "maps" / f"{big['stem']}.npy", mmap_mode="r").shape == (4000, 6000)
+
+
+def test_planar_set_needs_the_default_preset(tmp_path):
+    """Shots of a flat scene from one spot: every F is degenerate. The paper preset stops with a
+    clear error; the default preset uses them as homography pairs and finds the moved object."""
+    from test_homography import H_TRUE, _scene
+    d = tmp_path / "flat"
+    (d / "images").mkdir(parents=True)
+    (d / "gt").mkdir()
+    base = _scene(5, 360, 480)
+    rng = np.random.default_rng(3)
+    for k in range(4):
+        H = np.eye(3) + np.diag([0.02, -0.02, 0]) * (k - 1.5) + np.array([[0, 0, 8.0 * k], [0, 0, -5.0 * k], [0, 0, 0]])
+        img = cv2.warpPerspective(base, H, (480, 360), borderMode=cv2.BORDER_REFLECT)
+        x, y = 60 + 90 * k, 150 + 10 * k                        # a square that moves between shots
+        cv2.rectangle(img, (x, y), (x + 60, y + 60), (30, 30, 220), -1)
+        gt = np.zeros((360, 480), np.uint8)
+        gt[y:y + 61, x:x + 61] = 255
+        cv2.imwrite(str(d / "images" / f"v{k}.jpg"), img)
+        cv2.imwrite(str(d / "gt" / f"v{k}.png"), gt)
+    r = run_cli("detect", d, "--out", tmp_path / "paper", "--no-cache", "--workers", 1)
+    assert r.returncode == 2 and "no pair of photos has trustworthy geometry" in r.stderr
+    r = run_cli("detect", d, "--out", tmp_path / "default", "--preset", "default", "--no-cache", "--workers", 1)
+    assert r.returncode == 0, r.stderr
+    s = json.loads((tmp_path / "default" / "summary.json").read_text())
+    assert {p["status"] for p in s["pairs"]} == {"homography"}
+    assert s["evaluation"]["mean_opt_image"] > 0.5
