@@ -21,6 +21,7 @@ import numpy as np
 
 from .descriptors import color_similarity, image_channels
 from .params import Params
+from .photometric import normalise_aligned
 
 PAD = 2      # blocks of padding so that border pixels are covered by 9 patches too
 
@@ -76,6 +77,8 @@ def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.n
     warped = cv2.warpPerspective(rgb_sup, H, (w, h), flags=flags, borderMode=cv2.BORDER_REFLECT)
     inside = cv2.warpPerspective(np.ones(rgb_sup.shape[:2], np.uint8), H, (w, h),
                                  flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderValue=0)
+    if dp.color_normalise:
+        warped = normalise_aligned(rgb_ref, warped, inside)
     nby, nbx = -(-h // s) + 2 * PAD, -(-w // s) + 2 * PAD
     feats = []
     for img, valid in ((rgb_ref, np.ones((h, w), np.float32)), (warped, inside.astype(np.float32))):

@@ -56,6 +56,7 @@ class DescriptorParams:
     w_hog: float = 2.0                 # paper: weight of HOG (cosine similarity)
     w_color: float = 1.0               # paper: weight of the colour histogram (intersection over union)
     norm_percentile: float = 0.0       # paper: 0 = min/max range of C over all pairs of the set
+    color_normalise: bool = False      # paper: raw colours; default: map support colours to the reference's
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,8 @@ class AggregateParams:
     remap: tuple[float, float] = (0.3, 0.7)  # paper: remap P(x|I_s) to (0.3, 0.7) before the product
     no_evidence: str = "no_match"      # paper: a patch with no candidate counts as unmatched
     threshold: float = 0.5             # ours: default threshold for the written masks
+    refine_radius_frac: float = 0.0    # paper: none; default: guided filter radius / working max side
+    refine_eps: float = 0.01           # guided filter regularisation (intensity variance units)
 
 
 @dataclass(frozen=True)
@@ -87,7 +90,7 @@ class Params:
         """The parameters a per-pair matching result depends on, as canonical JSON."""
         d = {"max_side": self.max_side, "patches": dataclasses.asdict(self.patches),
              "descriptors": {k: v for k, v in dataclasses.asdict(self.descriptors).items()
-                             if k in ("hog_cells", "hog_bins", "hist_bins", "hog_floor")}}
+                             if k in ("hog_cells", "hog_bins", "hist_bins", "hog_floor", "color_normalise")}}
         return json.dumps(d, sort_keys=True)
 
     def geometry_key_material(self) -> str:
@@ -105,8 +108,8 @@ PRESETS: dict[str, Params] = {
     "default": Params(
         preset="default",
         geometry=GeometryParams(homography_pairs=True),
-        descriptors=DescriptorParams(norm_percentile=1.0),
-        aggregate=AggregateParams(no_evidence="neutral"),
+        descriptors=DescriptorParams(norm_percentile=1.0, color_normalise=True),
+        aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02),
     ),
 }
 

@@ -23,6 +23,8 @@ from .loading import InputError, PhotoSet
 from .homography import match_pair_homography
 from .matching import PairResult, match_pair
 from .params import Params
+from .photometric import normalise_to_reference
+from .refine import refine
 from .support import PairGeometry, estimate_pair, support_sets
 
 Progress = Callable[[str, int, int], None]
@@ -50,6 +52,13 @@ class SetResult:
     warnings: list[str] = field(default_factory=list)
     cache_hits: int = 0
     cache_misses: int = 0
+
+    def dynamic_prob(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
+        """P_dynamic of photo i from the given supports (Eq. 3, then the optional refinement)."""
+        p = params or self.params
+        dyn = combine([self.match_prob(i, j, p) for j in supports], p.aggregate)
+        r = int(round(p.aggregate.refine_radius_frac * p.max_side))
+        return refine(dyn, self.photo_set.photos[i].rgb, r, p.aggregate.refine_eps) if r > 0 else dyn
 
     def match_prob(self, i: int, j: int, params: Params | None = None) -> np.ndarray:
         """P(x|I_j) for reference i, (h, w) float32 (Eq. 2)."""
@@ -86,11 +95,16 @@ def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[in
     return (i, j), cache_mod.to_bytes(g)
 
 
-def _task_pair(i: int, j: int, F: np.ndarray, scale: float, H: np.ndarray | None) -> tuple[tuple[int, int], bytes]:
-    if H is not None:
-        r = match_pair_homography(i, j, _W["rgbs"][i], _W["rgbs"][j], H, _W["params"])
+def _task_pair(i: int, j: int, g: PairGeometry) -> tuple[tuple[int, int], bytes]:
+    p = _W["params"]
+    if g.is_homography:
+        r = match_pair_homography(i, j, _W["rgbs"][i], _W["rgbs"][j], g.H, p)
     else:
-        r = match_pair(i, j, _channels(i), _channels(j), F, scale, _W["params"])
+        ch_sup = _channels(j)
+        if p.descriptors.color_normalise:      # the support's colours mapped to this reference's
+            rgb = normalise_to_reference(_W["rgbs"][i], _W["rgbs"][j], g.inliers_ref, g.inliers_sup)
+            ch_sup = image_channels(rgb, p.descriptors.hist_bins)
+        r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, p)
     return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
 
 
@@ -224,8 +238,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
-        runner.map(_task_pair, [(i, j, pairs[(i, j)].F, pairs[(i, j)].scale, pairs[(i, j)].H) for i, j in todo],
-                   got_pair)
+        runner.map(_task_pair, [(i, j, pairs[(i, j)]) for i, j in todo], got_pair)
         timings["pairs_s"] = time.perf_counter() - t1
     finally:
         runner.close()
@@ -238,7 +251,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     result = SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings, warnings)
     for i in refs:
         if supports[i]:
-            result.dynamic[i] = combine([result.match_prob(i, j) for j in supports[i]], params.aggregate)
+            result.dynamic[i] = result.dynamic_prob(i, supports[i])
     timings["aggregate_s"] = time.perf_counter() - t2
     result.cache_hits = cache.hits - hits0
     result.cache_misses = cache.misses - miss0

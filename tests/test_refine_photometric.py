@@ -1,0 +1,50 @@
+"""Spatial refinement (guided filter) and photometric normalisation (default preset)."""
+
+import numpy as np
+
+from pipeline.photometric import apply_gain_offset, fit_gain_offset, normalise_aligned
+from pipeline.refine import guided_filter, refine
+
+
+def test_guided_filter_keeps_constants_and_removes_speckle():
+    rng = np.random.default_rng(0)
+    guide = np.full((60, 80), 0.5, np.float32)
+    const = np.full((60, 80), 0.3, np.float32)
+    assert np.allclose(guided_filter(guide, const, 5, 0.01), 0.3, atol=1e-5)
+    speckle = const.copy()
+    speckle[30, 40] = 1.0                       # one isolated pixel on a flat photo
+    out = guided_filter(guide, speckle, 5, 0.01)
+    assert out[30, 40] < 0.32
+
+
+def test_guided_filter_keeps_edges_of_the_photo():
+    guide = np.zeros((60, 80), np.float32)
+    guide[:, 40:] = 1.0                          # an edge in the photo
+    src = np.where(guide > 0, 0.9, 0.1).astype(np.float32)
+    out = guided_filter(guide, src, 6, 1e-4)
+    assert out[:, :35].max() < 0.15 and out[:, 45:].min() > 0.85
+
+
+def test_refine_output_range():
+    rng = np.random.default_rng(1)
+    rgb = (rng.random((40, 50, 3)) * 255).astype(np.uint8)
+    out = refine(rng.random((40, 50)).astype(np.float32), rgb, 4, 0.01)
+    assert out.shape == (40, 50) and out.min() >= 0 and out.max() <= 1
+
+
+def test_gain_offset_is_recovered_despite_outliers():
+    rng = np.random.default_rng(2)
+    ref = rng.uniform(20, 230, (500, 3))
+    a_true, b_true = np.array([1.2, 0.9, 1.05]), np.array([-10.0, 5.0, 0.0])
+    sup = (ref - b_true) / a_true
+    sup[:60] = rng.uniform(0, 255, (60, 3))      # 12 % of the samples are not shared colours
+    a, b = fit_gain_offset(ref, sup)
+    assert np.allclose(a, a_true, atol=0.02) and np.allclose(b, b_true, atol=2.0)
+
+
+def test_aligned_normalisation_maps_support_colours_to_the_reference():
+    rng = np.random.default_rng(3)
+    ref = (rng.uniform(30, 220, (40, 60, 3))).astype(np.uint8)
+    sup = apply_gain_offset(ref, np.array([0.8, 1.1, 0.95]), np.array([10.0, -5.0, 3.0]))
+    out = normalise_aligned(ref, sup, np.ones((40, 60), np.uint8), step=1)
+    assert np.abs(out.astype(int) - ref.astype(int)).mean() < 1.5
