@@ -174,7 +174,7 @@ def cmd_bench(args) -> int:
     for s in sets:
         if not s.is_dir():
             raise CliError(f"{s}: no such folder")
-    presets = args.preset or ["paper"]
+    presets = args.preset or ["default"]
     out = Path(args.json) if args.json else Path.cwd() / "crowdcam-out" / "bench.json"
     return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet)
 
@@ -200,7 +200,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     def common(p, cache=True):
-        p.add_argument("--preset", default="paper", choices=sorted(PRESETS), help="parameter preset (default: paper)")
+        p.add_argument("--preset", default="default", choices=sorted(PRESETS),
+                       help="parameter preset: default (ours) or paper (the paper's method unchanged)")
         p.add_argument("--max-side", type=int, default=None, help="working resolution, longer side in px (default 640)")
         p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
         p.add_argument("--quiet", action="store_true", help="no progress output")

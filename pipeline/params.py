@@ -27,6 +27,7 @@ class GeometryParams:
     max_homography_share: float = 0.85  # if one homography explains this share of the F inliers, F is degenerate
     max_instability_px: float = 3.0    # median epipolar distance of inliers under an F re-fitted on half the data
     homography_pairs: bool = False     # paper: drop degenerate pairs; default: keep them as homography pairs
+    homography_parallax_frac: float = 0.0125   # 95th pct. transfer error of static matches / max side (8 px at 640)
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,7 @@ PRESETS: dict[str, Params] = {
     "default": Params(
         preset="default",
         geometry=GeometryParams(homography_pairs=True),
-        descriptors=DescriptorParams(norm_percentile=1.0, color_normalise=True),
+        descriptors=DescriptorParams(color_normalise=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02),
     ),
 }

@@ -157,6 +157,16 @@ def _homography_pair(i, j, F, p_ref, p_sup, size_i, size_j, scale, hshare, p: Ge
     if n_in < p.min_inliers or spread < p.min_spread:
         return result(F, REJECTED, f"degenerate F, and the homography has {n_in} inliers covering {spread:.0%}",
                       inl, spread, hshare, scale=scale)
+    # Static points off the dominant plane show parallax after alignment. The point-to-point
+    # comparison searches only a small window, so every matched static point must land within it.
+    _, f_inl = _fit_f(p_ref, p_sup, p.ransac_px)
+    ph = np.concatenate([p_ref[f_inl], np.ones((int(f_inl.sum()), 1), np.float32)], axis=1) @ H.T
+    transfer = np.linalg.norm(ph[:, :2] / ph[:, 2:3] - p_sup[f_inl], axis=1)
+    parallax = float(np.percentile(transfer, 95)) if len(transfer) else 0.0
+    limit = p.homography_parallax_frac * max(size_i)
+    if parallax > limit:
+        return result(F, REJECTED, f"degenerate F, and residual parallax after the homography is {parallax:.1f} px "
+                      f"(> {limit:.1f} px)", inl, spread, hshare, scale=scale)
     return result(F, HOMOGRAPHY, f"homography pair: one homography explains {hshare:.0%} of the inliers",
                   inl, spread, hshare, scale=scale, H=H / H[2, 2])
 
