@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -133,7 +132,7 @@ def cmd_eval(args) -> int:
     import numpy as np
     from pipeline.cache import atomic_write_bytes
     from pipeline.evaluate import score_set, static_false_positive_rate
-    from pipeline.loading import InputError, load_gt
+    from pipeline.loading import load_gt
 
     out = Path(args.dir)
     summary_path = out / "summary.json"

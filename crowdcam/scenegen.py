@@ -47,6 +47,18 @@ def _fbm(rng, size, octaves=(4, 8, 16, 32, 64), channels=1) -> np.ndarray:
     return out / tot
 
 
+def _graffiti(rng, size: int, pattern: "Stones", extent: tuple[float, float]) -> np.ndarray:
+    """Render a procedural pattern once over a whole surface of `extent` metres and spray tags on it."""
+    h = int(size * extent[1] / extent[0])
+    vv, uu = np.mgrid[0:h, 0:size]
+    img = pattern((uu.ravel() + 0.5) / size * extent[0], (vv.ravel() + 0.5) / h * extent[1]).reshape(h, size, 3)
+    img = np.ascontiguousarray(img.astype(np.float32))
+    for _ in range(int(extent[0] * 1.2)):
+        pts = np.cumsum(rng.normal(0, h / 12, (8, 2)), axis=0) + [rng.integers(0, size), rng.integers(h // 2, h)]
+        cv2.polylines(img, [pts.astype(np.int32)], False, rng.random(3).tolist(), int(rng.integers(2, 6)), cv2.LINE_AA)
+    return np.clip(img, 0, 1)
+
+
 def tex_wood(rng, size=512, base=(0.55, 0.36, 0.2)) -> np.ndarray:
     n = _fbm(rng, size, (4, 16, 64))[..., 0]
     y = np.arange(size)[:, None] / size

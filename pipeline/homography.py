@@ -19,7 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from .descriptors import color_similarity, image_channels
+from .descriptors import image_channels
 from .params import Params
 from .photometric import normalise_aligned
 

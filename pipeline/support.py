@@ -101,7 +101,6 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     m = match(fi, fj, p.ratio)
     p_ref = fi.xy[m[:, 0]].astype(np.float32)
     p_sup = fj.xy[m[:, 1]].astype(np.float32)
-    empty = np.zeros((0, 2), np.float32)
 
     def result(F, status, reason, inl=None, spread=0.0, hshare=0.0, instab=0.0, scale=1.0, H=None):
         inl = np.zeros(len(m), bool) if inl is None else inl

@@ -243,12 +243,11 @@ def test_huge_photo_is_downscaled(tmp_path):
 def test_planar_set_needs_the_default_preset(tmp_path):
     """Shots of a flat scene from one spot: every F is degenerate. The paper preset stops with a
     clear error; the default preset uses them as homography pairs and finds the moved object."""
-    from test_homography import H_TRUE, _scene
+    from test_homography import _scene
     d = tmp_path / "flat"
     (d / "images").mkdir(parents=True)
     (d / "gt").mkdir()
     base = _scene(5, 360, 480)
-    rng = np.random.default_rng(3)
     for k in range(4):
         H = np.eye(3) + np.diag([0.02, -0.02, 0]) * (k - 1.5) + np.array([[0, 0, 8.0 * k], [0, 0, -5.0 * k], [0, 0, 0]])
         img = cv2.warpPerspective(base, H, (480, 360), borderMode=cv2.BORDER_REFLECT)

@@ -7,7 +7,6 @@ from pipeline.refine import guided_filter, refine
 
 
 def test_guided_filter_keeps_constants_and_removes_speckle():
-    rng = np.random.default_rng(0)
     guide = np.full((60, 80), 0.5, np.float32)
     const = np.full((60, 80), 0.3, np.float32)
     assert np.allclose(guided_filter(guide, const, 5, 0.01), 0.3, atol=1e-5)
