@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY      = $(VENV)/bin/python
 SET    ?= sample_sets/square_people
 
-.PHONY: setup demo test bench samples clean
+.PHONY: setup browser demo test bench samples clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,7 +20,12 @@ demo: setup
 	$(VENV)/bin/crowdcam detect $(SET)
 	@echo "maps, masks and overlays are in crowdcam-out/$(notdir $(SET))/"
 
-test: setup
+# Debian's Chromium for the browser tests (root installs it with apt-get; never `playwright install`)
+browser:
+	@test -x /usr/bin/chromium || { apt-get update -qq && apt-get install -y -qq chromium >/dev/null; }
+	@test -x /usr/bin/chromium || { echo "chromium is missing: apt-get install chromium (as root)"; exit 1; }
+
+test: setup browser
 	$(PY) -m pytest -q
 
 bench: setup

@@ -120,11 +120,117 @@ def cmd_detect(args) -> int:
             score = score_set(probs, gts)
             extra["evaluation"] = score.to_dict()
             rep.info(_table_row(photo_set.name, score))
+    if args.rrd or args.rerun_web:
+        extra["rerun_s"] = _log_rerun(args, res, photo_set, threshold, extra.get("evaluation"), rep)
     write_outputs(res, out, threshold, extra)
     n_ok = sum(d is not None for d in res.dynamic)
     n_pairs = len(res.pair_results)
     rep.info(f"wrote {n_ok} maps to {out} ({n_pairs} ordered pairs, "
              f"{res.timings['total_s']:.1f} s, {res.cache_hits} cached)")
+    if args.rerun_web:
+        _serve_live(args, rep)
+    return 0
+
+
+def _parse_pixels(specs: list[str] | None):
+    import numpy as np
+    if not specs:
+        return None
+    try:
+        return np.array([[float(v) for v in sp.split(",")] for sp in specs], np.float64).reshape(-1, 2)
+    except ValueError:
+        raise CliError(f"--rr-pixel takes X,Y in working-resolution pixels (got {specs})") from None
+
+
+def _log_rerun(args, res, photo_set, threshold, evaluation, rep) -> float:
+    """Record the run (--rrd FILE, written atomically) and/or stream it live (--rerun-web)."""
+    import os
+    import tempfile
+
+    import rerun as rr
+
+    from pipeline.loading import load_gt
+    from pipeline.rerun_log import log_run, make_blueprint
+
+    t0 = time.perf_counter()
+    stems = [p.stem for p in photo_set.photos]
+    focus = None
+    if args.rr_ref:
+        if args.rr_ref not in stems:
+            raise CliError(f"--rr-ref {args.rr_ref}: no photo with that stem in the set")
+        focus = stems.index(args.rr_ref)
+    gts = {}
+    if photo_set.gt_dir is not None:
+        for p in photo_set.photos:
+            g = load_gt(photo_set.gt_dir, p.stem, p.orig_size)
+            if g is not None:
+                gts[p.stem] = g
+    scores = (evaluation or {}).get("per_image_at_set", {})
+    rec = rr.RecordingStream("crowdcam", recording_id=f"{photo_set.name}-{int(time.time())}")
+    tmp = None
+    if args.rrd:
+        target = Path(args.rrd)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
+        os.close(fd)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)       # mkstemp makes 0600; the recording is an ordinary file
+        rec.save(tmp)
+    if args.rerun_web:
+        from crowdcam.rerun_web import RerunWeb
+        args._web = RerunWeb()
+        rec.connect_grpc(args._web.grpc_uri)    # live; the file sink above keeps writing too
+    try:
+        desc = log_run(res, rec, focus=focus, pixels=_parse_pixels(args.rr_pixel), gts=gts, scores=scores,
+                       threshold=threshold)
+        rec.send_blueprint(make_blueprint(desc))
+        rec.flush()
+        if args.rerun_web:
+            args._rec = rec
+        else:
+            rec.disconnect()
+        if tmp:
+            if args.rerun_web:
+                rec.flush()
+            os.replace(tmp, args.rrd)
+            tmp = None
+            rep.info(f"recorded {args.rrd} ({Path(args.rrd).stat().st_size / 2**20:.1f} MB); "
+                     f"view it with: crowdcam view {args.rrd}")
+    finally:
+        if tmp and os.path.exists(tmp):
+            os.unlink(tmp)
+    return time.perf_counter() - t0
+
+
+def _serve_live(args, rep) -> None:
+    from crowdcam.rerun_web import wait_until_interrupted
+    print(f"Rerun web viewer: {args._web.url}  (Ctrl-C to stop)", flush=True)
+    try:
+        wait_until_interrupted()
+    finally:
+        args._rec.disconnect()
+        args._web.close()
+
+
+def cmd_view(args) -> int:
+    from crowdcam.rerun_web import RerunWeb, push_file, wait_until_interrupted
+
+    path = Path(args.file)
+    if not path.is_file():
+        raise CliError(f"{path}: no such recording")
+    try:
+        from pipeline.rerun_log import read_blueprint_desc
+        read_blueprint_desc(path)
+    except Exception as e:          # a truncated or foreign file: one line, no traceback
+        raise CliError(f"{path}: not a readable crowdcam recording ({e})") from None
+    with RerunWeb(web_port=args.port) as web:
+        rec = push_file(web, path)
+        print(f"Rerun web viewer: {web.url}  (Ctrl-C to stop)", flush=True)
+        try:
+            wait_until_interrupted()
+        finally:
+            rec.disconnect()
     return 0
 
 
@@ -212,8 +318,17 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("set", help="folder of photos, or folder with images/ (and optional gt/)")
     d.add_argument("--out", default=None, help="output folder (default ./crowdcam-out/<set name>)")
     d.add_argument("--threshold", type=float, default=None, help="mask threshold on P_dynamic (default 0.5)")
+    d.add_argument("--rrd", default=None, help="record the run's internals to this Rerun file")
+    d.add_argument("--rerun-web", action="store_true", help="stream the run to Rerun's web viewer and serve it")
+    d.add_argument("--rr-ref", default=None, help="reference photo (stem) shown first in Rerun")
+    d.add_argument("--rr-pixel", action="append", help="X,Y (working pixels) of the reference to explain in Rerun")
     common(d)
     d.set_defaults(fn=cmd_detect)
+
+    v = sub.add_parser("view", help="serve a Rerun recording in the web viewer on 127.0.0.1")
+    v.add_argument("file", help="a .rrd file written by `crowdcam detect --rrd`")
+    v.add_argument("--port", type=int, default=None, help="web viewer port (default: a free one)")
+    v.set_defaults(fn=cmd_view)
 
     e = sub.add_parser("eval", help="Jaccard of a detect output against ground truth (Table 1 row)")
     e.add_argument("dir", help="output folder of `crowdcam detect`")

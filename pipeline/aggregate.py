@@ -83,6 +83,12 @@ def combine(match_probs: Sequence[np.ndarray], ap: AggregateParams) -> np.ndarra
     return (1.0 - p_static).astype(np.float32)
 
 
-def cumulative_dynamic(match_probs: Sequence[np.ndarray], ap: AggregateParams) -> list[np.ndarray]:
-    """P_dynamic after 1, 2, ..., k supports (the paper's Fig. 5)."""
-    return [combine(match_probs[: i + 1], ap) for i in range(len(match_probs))]
+def cumulative_dynamic(match_probs: Sequence[np.ndarray], ap: AggregateParams):
+    """P_dynamic after 1, 2, ..., k supports (the paper's Fig. 5), one running log-odds sum:
+    yields k maps (h, w) float32, each equal to combine(match_probs[:k])."""
+    lo, hi = ap.remap
+    logit = np.zeros(match_probs[0].shape, np.float64) if len(match_probs) else None
+    for p in match_probs:
+        q = np.clip(remap(p.astype(np.float64), lo, hi), 1e-9, 1 - 1e-9)
+        logit += np.log(q) - np.log1p(-q)
+        yield (1.0 - 1.0 / (1.0 + np.exp(-logit))).astype(np.float32)

@@ -86,29 +86,42 @@ def candidate_widths(params: Params, L: int, pair_scale: float) -> np.ndarray:
     return np.unique(np.maximum(np.round(L * s * np.array(params.patches.candidate_scales)), 4).astype(np.int64))
 
 
-def match_pair(ref: int, sup: int, ch_ref: ImageChannels, ch_sup: ImageChannels, F: np.ndarray,
-               pair_scale: float, params: Params) -> PairResult:
-    """Compute C(r|I_s) for all reference patches and the pair's raw matching map."""
-    t_start = time.perf_counter()
-    pp, dp = params.patches, params.descriptors
-    L = patch_length(params)
-    e_ref, _ = epipoles(F)
-    st = build_ref_strips(e_ref, ch_ref.size, L, pp.along_overlap, pp.rows, pp.n_fans)
-    cells_across, cells_along = dp.hog_cells
+@dataclass(frozen=True)
+class Candidates:
+    """Candidate patches of the support strips, sorted by reference strip (C of them).
 
-    # Reference strips -> patch descriptors.
+    strip, seg, start, length: (C,) int64 reference strip, support segment, along start within the
+    segment and length (samples); hog: (C, D) float32 unit HOGs; color: (C, B) float32 histograms.
+    """
+
+    strip: np.ndarray
+    seg: np.ndarray
+    start: np.ndarray
+    length: np.ndarray
+    hog: np.ndarray
+    color: np.ndarray
+
+
+def describe_reference(ch_ref: ImageChannels, st: RefStrips, params: Params):
+    """All reference patches of the strips `st`: (patch strip ids, along starts, WindowDescriptors)."""
+    dp = params.descriptors
+    cells_across, cells_along = dp.hog_cells
     xy_r, strip_of = ref_sample_points(st)
     d_r, n_r = ref_frames(st)
     sf_r = strip_features(ch_ref, xy_r, d_r[strip_of], n_r[strip_of], cells_across, dp.hog_bins, dp.hist_bins)
     p_strip = np.repeat(np.arange(st.n_strips), st.n_win)
     p_j = np.arange(len(p_strip)) - np.repeat(np.concatenate([[0], np.cumsum(st.n_win)[:-1]]), st.n_win)
     p_start = p_j * st.stride
-    wr = window_descriptors(sf_r, st.offset[p_strip] + p_start, np.full(len(p_strip), L), cells_along, dp.hog_floor)
-    hog_r = wr.hog
-    in_view = wr.valid >= pp.min_valid_ref
+    wr = window_descriptors(sf_r, st.offset[p_strip] + p_start, np.full(len(p_strip), st.L), cells_along,
+                            dp.hog_floor)
+    return p_strip, p_start, wr
 
-    # Support strips -> candidate descriptors, every `step` samples, three widths.
-    sg = build_support_segments(F, st, ch_ref.size, ch_sup.size)
+
+def describe_candidates(ch_sup: ImageChannels, sg: SupportSegments, L: int, pair_scale: float,
+                        params: Params) -> Candidates:
+    """Candidates every `step` samples along every support segment, with three widths (§3.1.1)."""
+    pp, dp = params.patches, params.descriptors
+    cells_across, cells_along = dp.hog_cells
     xy_s, seg_of = support_sample_points(sg)
     sf_s = strip_features(ch_sup, xy_s, sg.along_dir[seg_of], sg.across_dir[seg_of], cells_across,
                           dp.hog_bins, dp.hist_bins)
@@ -122,12 +135,27 @@ def match_pair(ref: int, sup: int, ch_ref: ImageChannels, ch_sup: ImageChannels,
     c_seg, c_start, c_len = (np.concatenate(a).astype(np.int64) for a in (c_seg, c_start, c_len))
     wc = window_descriptors(sf_s, sg.offset[c_seg] + c_start, c_len, cells_along, dp.hog_floor)
     keep = wc.valid >= pp.min_valid_candidate
-    c_seg, c_start, c_len = c_seg[keep], c_start[keep], c_len[keep]
-    hog_c = wc.hog[keep]
-    col_c = wc.color[keep]
-    c_strip = sg.strip[c_seg]
+    c_strip = sg.strip[c_seg[keep]]
     order = np.argsort(c_strip, kind="stable")
-    c_strip, c_seg, c_start, c_len, hog_c, col_c = (a[order] for a in (c_strip, c_seg, c_start, c_len, hog_c, col_c))
+    return Candidates(c_strip[order], c_seg[keep][order], c_start[keep][order], c_len[keep][order],
+                      wc.hog[keep][order], wc.color[keep][order])
+
+
+def match_pair(ref: int, sup: int, ch_ref: ImageChannels, ch_sup: ImageChannels, F: np.ndarray,
+               pair_scale: float, params: Params) -> PairResult:
+    """Compute C(r|I_s) for all reference patches and the pair's raw matching map."""
+    t_start = time.perf_counter()
+    pp = params.patches
+    L = patch_length(params)
+    e_ref, _ = epipoles(F)
+    st = build_ref_strips(e_ref, ch_ref.size, L, pp.along_overlap, pp.rows, pp.n_fans)
+    p_strip, p_start, wr = describe_reference(ch_ref, st, params)
+    hog_r = wr.hog
+    in_view = wr.valid >= pp.min_valid_ref
+    sg = build_support_segments(F, st, ch_ref.size, ch_sup.size)
+    cand = describe_candidates(ch_sup, sg, L, pair_scale, params)
+    c_strip, c_seg, c_start, c_len, hog_c, col_c = (cand.strip, cand.seg, cand.start, cand.length, cand.hog,
+                                                    cand.color)
 
     # Eq. 1: confidence = best similarity over the candidates of the corresponding strip.
     P = len(p_strip)

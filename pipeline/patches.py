@@ -22,6 +22,7 @@ direction that corresponds to "along" in the reference, so windows compare like 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -201,18 +202,22 @@ def build_ref_strips(e_h: np.ndarray, size: tuple[int, int], L: int, along_overl
                      theta_c, t0, n_win.astype(np.int64), offset, L, stride, rows)
 
 
-def iter_covering(st: RefStrips, size: tuple[int, int]):
-    """For every pixel of an (h, w) reference image, the patches that cover it.
+def iter_covering(st: RefStrips, size: tuple[int, int], points: np.ndarray | None = None):
+    """For every pixel of an (h, w) reference image (or for the given (N, 2) points), the patches
+    that cover it.
 
     Yields one (patch_id, ok, d2) triple per (fan, along offset), i.e. n_fans * along_overlap
     times: patch_id (h*w,) int64 index into the patch table (strip-major order, as in
     matching.match_pair), ok (h*w,) bool where that patch exists, and d2 (h*w,) float64 squared
     distance in pixels from the pixel to the patch centre.
     """
-    h, w = size
-    ys, xs = np.mgrid[0:h, 0:w]
-    dx = xs.ravel() - st.epipole[0]
-    dy = ys.ravel() - st.epipole[1]
+    if points is None:
+        ys, xs = np.mgrid[0:size[0], 0:size[1]]
+        xs, ys = xs.ravel(), ys.ravel()
+    else:
+        xs, ys = np.asarray(points, np.float64)[:, 0], np.asarray(points, np.float64)[:, 1]
+    dx = xs - st.epipole[0]
+    dy = ys - st.epipole[1]
     r = np.hypot(dx, dy)
     theta = np.arctan2(dy, dx)
     rel = np.mod(theta - st.theta_lo, 2 * np.pi)
@@ -237,6 +242,15 @@ def iter_covering(st: RefStrips, size: tuple[int, int]):
             pid = np.minimum(np.where(ok, win_base[s] + np.maximum(j, 0), 0), n_patches - 1)
             tc = st.t0[s] + j * st.stride + st.L / 2
             yield pid, ok, (t - tc) ** 2 + u2
+
+
+def subset_strips(st: RefStrips, strip_ids: np.ndarray) -> RefStrips:
+    """The same fans restricted to some strips (for explaining a few patches cheaply)."""
+    ids = np.asarray(strip_ids, np.int64)
+    n_along = st.n_along[ids]
+    offset = np.concatenate([[0], np.cumsum(n_along)[:-1]]).astype(np.int64)
+    return dataclasses.replace(st, fan=st.fan[ids], k=st.k[ids], theta_c=st.theta_c[ids], t0=st.t0[ids],
+                               n_win=st.n_win[ids], offset=offset)
 
 
 def patch_coverage(st: RefStrips, size: tuple[int, int]) -> np.ndarray:

@@ -6,6 +6,7 @@ inspector. Per-pair work runs in a process pool (both cores) and is cached on di
 
 from __future__ import annotations
 
+import io
 import multiprocessing as mp
 import os
 import time
@@ -16,7 +17,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from . import cache as cache_mod
-from .aggregate import Normaliser, combine, match_probability
+from .aggregate import Normaliser, combine, cumulative_dynamic, match_probability
 from .descriptors import image_channels
 from .features import Features, detect
 from .loading import InputError, PhotoSet
@@ -38,7 +39,7 @@ class SetResult:
     pairs: geometry per ordered pair (i, j); supports[i]: admitted support indices of photo i;
     pair_results[(i, j)]: matching result for every admitted ordered pair;
     normaliser: set-level confidence ranges (§3.1.2); dynamic[i]: (h_i, w_i) float32 P_dynamic,
-    or None when photo i has no support.
+    or None when photo i has no support; keypoints[i]: (N_i, 2) float32 SIFT positions.
     """
 
     params: Params
@@ -50,21 +51,52 @@ class SetResult:
     dynamic: list[np.ndarray | None]
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    keypoints: list[np.ndarray] = field(default_factory=list)
     cache_hits: int = 0
     cache_misses: int = 0
 
     def dynamic_prob(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
         """P_dynamic of photo i from the given supports (Eq. 3, then the optional refinement)."""
         p = params or self.params
-        dyn = combine([self.match_prob(i, j, p) for j in supports], p.aggregate)
+        return self._refined(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
+
+    def sweep(self, i: int, params: Params | None = None) -> list[np.ndarray]:
+        """P_dynamic of photo i after its first 1, 2, ... k supports (the paper's Fig. 5); the last
+        equals dynamic_prob(i, supports[i])."""
+        p = params or self.params
+        probs = [self.match_prob(i, j, p) for j in self.supports[i]]
+        return [self._refined(i, d, p) for d in cumulative_dynamic(probs, p.aggregate)]
+
+    def _refined(self, i: int, dyn: np.ndarray, p: Params) -> np.ndarray:
         r = int(round(p.aggregate.refine_radius_frac * p.max_side))
         return refine(dyn, self.photo_set.photos[i].rgb, r, p.aggregate.refine_eps) if r > 0 else dyn
+
+    def explain(self, i: int, j: int, patch_ids: np.ndarray | None = None, pixels: np.ndarray | None = None):
+        """Candidate evidence (explain.PatchEvidence) for patches of epipolar pair (i, j), given
+        by patch id or as the patches covering (N, 2) reference pixels."""
+        from .explain import explain_patches, patches_at
+        r, g = self.pair_results[(i, j)], self.pairs[(i, j)]
+        if patch_ids is None:
+            patch_ids = np.unique(np.concatenate(patches_at(r, pixels)))
+        rgbs = [p.rgb for p in self.photo_set.photos]
+        ch_ref = image_channels(rgbs[i], self.params.descriptors.hist_bins)
+        return explain_patches(r, ch_ref, support_channels(rgbs[i], rgbs[j], g, self.params), g.F, g.scale,
+                               self.params, patch_ids)
 
     def match_prob(self, i: int, j: int, params: Params | None = None) -> np.ndarray:
         """P(x|I_j) for reference i, (h, w) float32 (Eq. 2)."""
         p = params or self.params
         r = self.pair_results[(i, j)]
         return match_probability(r.hog_map, r.color_map, r.evidence, self.normaliser, p.descriptors, p.aggregate)
+
+
+def support_channels(rgb_ref: np.ndarray, rgb_sup: np.ndarray, g: PairGeometry, params: Params):
+    """Descriptor inputs of the support for this pair: its colours mapped to the reference's when
+    the preset normalises colour (photometric.py), else the support as it is."""
+    rgb = rgb_sup
+    if params.descriptors.color_normalise:
+        rgb = normalise_to_reference(rgb_ref, rgb_sup, g.inliers_ref, g.inliers_sup)
+    return image_channels(rgb, params.descriptors.hist_bins)
 
 
 # ----------------------------------------------------------------------------- workers
@@ -100,10 +132,7 @@ def _task_pair(i: int, j: int, g: PairGeometry) -> tuple[tuple[int, int], bytes]
     if g.is_homography:
         r = match_pair_homography(i, j, _W["rgbs"][i], _W["rgbs"][j], g.H, p)
     else:
-        ch_sup = _channels(j)
-        if p.descriptors.color_normalise:      # the support's colours mapped to this reference's
-            rgb = normalise_to_reference(_W["rgbs"][i], _W["rgbs"][j], g.inliers_ref, g.inliers_sup)
-            ch_sup = image_channels(rgb, p.descriptors.hist_bins)
+        ch_sup = support_channels(_W["rgbs"][i], _W["rgbs"][j], g, p) if p.descriptors.color_normalise else _channels(j)
         r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, p)
     return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
 
@@ -183,13 +212,23 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
             else:
                 todo.append(ij)
-        if todo:
-            need = sorted({i for ij in todo for i in ij})
+        kkey = [cache_mod.key("keypoints", p.key, params.geometry_key_material()) for p in photos]
+        keypoints: list[np.ndarray | None] = [None] * n
+        for i in range(n):
+            data = cache.get("keypoints", kkey[i])
+            if data is not None:
+                keypoints[i] = np.load(io.BytesIO(data))
+        if todo or any(k is None for k in keypoints):
+            need = sorted({i for ij in todo for i in ij} | {i for i in range(n) if keypoints[i] is None})
             feats: dict[int, Features] = {}
             done = [0]
 
             def got_features(res):
                 feats[res[0]] = res[1]
+                keypoints[res[0]] = res[1].xy
+                buf = io.BytesIO()
+                np.save(buf, res[1].xy)
+                cache.put("keypoints", kkey[res[0]], buf.getvalue())
                 done[0] += 1
                 progress("features", done[0], len(need))
             runner.map(_task_features, [(i,) for i in need], got_features)
@@ -248,7 +287,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     norm = Normaliser.from_confidences([r.patches.conf_hog for r in results.values()],
                                        [r.patches.conf_color for r in results.values()],
                                        params.descriptors.norm_percentile)
-    result = SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings, warnings)
+    result = SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings, warnings,
+                       keypoints=[k if k is not None else np.zeros((0, 2), np.float32) for k in keypoints])
     for i in refs:
         if supports[i]:
             result.dynamic[i] = result.dynamic_prob(i, supports[i])

@@ -264,3 +264,23 @@ def test_planar_set_needs_the_default_preset(tmp_path):
     s = json.loads((tmp_path / "default" / "summary.json").read_text())
     assert {p["status"] for p in s["pairs"]} == {"homography"}
     assert s["evaluation"]["mean_opt_image"] > 0.5
+
+
+@pytest.mark.parametrize("case", ["missing", "garbage"])
+def test_view_rejects_bad_recordings(tmp_path, case):
+    f = tmp_path / "x.rrd"
+    if case == "garbage":
+        f.write_bytes(b"not a recording")
+    r = run_cli("view", f)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and str(f) in r.stderr
+
+
+def test_rrd_is_written_atomically_and_only_when_asked(tmp_path, detected):
+    _, cache, _, _ = detected
+    rrd = tmp_path / "sub" / "run.rrd"
+    r = run_cli("detect", SET, "--out", tmp_path / "out", "--max-side", 240, "--rrd", rrd, "--quiet", cache=cache)
+    assert r.returncode == 0, r.stderr
+    assert rrd.stat().st_size > 100_000 and not list(rrd.parent.glob(".*partial"))
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["rerun_s"] > 0
+    assert "rerun_s" not in json.loads((detected[0] / "summary.json").read_text())

@@ -1,0 +1,302 @@
+"""Log a run's internals to Rerun (rerun-sdk 0.41): one small interface, `log_run(result, rec)`.
+
+The pipeline never calls this module: a run without a Rerun option pays nothing for it. It reads
+a finished SetResult; candidate evidence comes from SetResult.explain (the matcher's own code).
+
+Entity tree (stems are the photos' file stems):
+
+    /params                               parameters (markdown, static)
+    /log                                  warnings and progress (text log)
+    /images/<stem>                        photo (JPEG in the recording)
+    /images/<stem>/keypoints              SIFT keypoints
+    /pairs/<ref>/<sup>/info               status, reason, inliers (markdown)
+    /pairs/<ref>/<sup>/ref/...            in the reference: inliers, outliers, epipole, epilines (one
+                                          fan, one batch), patches (sampled reference patches)
+    /pairs/<ref>/<sup>/sup/...            in the support: inliers, outliers, epipole, epilines (the
+                                          corresponding lines), candidates (coloured by HOG
+                                          similarity), best (best candidates, labelled with scores)
+    /pairs/<ref>/<sup>/match_prob         P(x|I_sup), Eq. 2 (8-bit heat map)
+    /dynamic/<ref>/prob                   P_dynamic, Eq. 3 (16-bit heat map)
+    /dynamic/<ref>/mask                   mask at the threshold
+    /dynamic/<ref>/overlay                heat map blended over the photo, mask outlined
+    /dynamic/<ref>/gt                     ground truth (when the set has it), /dynamic/<ref>/jaccard
+    /dynamic/<ref>/sweep                  P_dynamic after 1, 2, ... k supports (timeline "supports")
+    /metrics/...                          timings and counts (scalars)
+
+Timelines: "patch" steps through the sampled reference patches (each with its candidates), and
+"supports" through the support sweep (the paper's Fig. 5).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+BLUEPRINT_ENTITY = "/meta/blueprint"
+
+
+def part(stem: str) -> str:
+    """A photo stem as one entity-path part."""
+    return re.sub(r"[^A-Za-z0-9_\-]", "_", stem) or "_"
+
+
+def _clip_line(l: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
+    """Segment of line (a, b, c) inside an (h, w) image, (2, 2), or None."""
+    h, w = size
+    a, b, c = l
+    pts = []
+    for x in (0.0, w - 1.0):
+        if abs(b) > 1e-12:
+            y = -(a * x + c) / b
+            if 0 <= y <= h - 1:
+                pts.append((x, y))
+    for y in (0.0, h - 1.0):
+        if abs(a) > 1e-12:
+            x = -(b * y + c) / a
+            if 0 <= x <= w - 1:
+                pts.append((x, y))
+    if len(pts) < 2:
+        return None
+    pts = np.array(pts)
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    return pts[[i, j]].astype(np.float32)
+
+
+def _closed(quads: np.ndarray) -> np.ndarray:
+    """(N, 4, 2) corners -> (N, 5, 2) closed strips, one batch."""
+    return np.concatenate([quads, quads[:, :1]], axis=1)
+
+
+def _heat(values: np.ndarray) -> np.ndarray:
+    """(N,) in [0, 1] -> (N, 3) uint8 colours, blue (low) to red (high)."""
+    import cv2
+    v = np.clip(np.asarray(values) * 255, 0, 255).astype(np.uint8)[:, None]
+    return cv2.applyColorMap(v, cv2.COLORMAP_JET)[:, 0, ::-1].copy()
+
+
+def choose_focus(res) -> int:
+    """The reference shown first: the photo with the most supports."""
+    return int(np.argmax([len(s) for s in res.supports]))
+
+
+def sample_pixels(res, i: int, n: int = 8) -> np.ndarray:
+    """A useful sample of reference pixels: the strongest dynamic spots and spread static ones."""
+    dyn = res.dynamic[i]
+    h, w = dyn.shape
+    import cv2
+    peaks = dyn * (dyn >= cv2.dilate(dyn, np.ones((31, 31), np.uint8)))
+    m = max(h, w) // 12                       # hot spots away from the borders
+    peaks[:m], peaks[-m:], peaks[:, :m], peaks[:, -m:] = 0, 0, 0, 0
+    order = np.argsort(peaks.ravel())[::-1][: n // 2]
+    hot = np.column_stack([order % w, order // w]).astype(np.float64)
+    gy, gx = np.mgrid[1:4, 1:4]
+    spread = np.column_stack([gx.ravel() * w / 4, gy.ravel() * h / 4])[: n - len(hot)]
+    return np.vstack([hot, spread])
+
+
+def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.ndarray | None = None,
+            gts: dict | None = None, scores: dict | None = None, threshold: float = 0.5) -> dict:
+    """Log everything of a finished run. Returns the blueprint description (also logged)."""
+    photos = res.photo_set.photos
+    stems = [part(p.stem) for p in photos]
+    focus = choose_focus(res) if focus is None else focus
+    rec.log("/params", rr.TextDocument("```json\n" + json.dumps(res.params.to_dict(), indent=1) + "\n```",
+                                       media_type=rr.MediaType.MARKDOWN), static=True)
+    _at_start(rec)             # log rows on both timelines, so the log view shows them on either
+    for msg in list(res.photo_set.warnings) + list(res.warnings):
+        rec.log("/log", rr.TextLog(msg, level=rr.TextLogLevel.WARN))
+    log_images(res, rec, stems)
+    for (i, j), g in sorted(res.pairs.items()):
+        log_pair(res, rec, stems, i, j)
+    log_dynamic(res, rec, stems, gts or {}, scores or {}, threshold)
+    if res.dynamic[focus] is not None:
+        pts = sample_pixels(res, focus) if pixels is None else np.asarray(pixels, np.float64)
+        for j in res.supports[focus]:
+            if res.pair_results[(focus, j)].kind == "epipolar":
+                log_candidates(res, rec, stems, focus, j, pts)
+    log_metrics(res, rec)
+    desc = {"focus": stems[focus], "supports": [stems[j] for j in res.supports[focus]],
+            "has_gt": bool(gts)}
+    rec.log(BLUEPRINT_ENTITY, rr.TextDocument(json.dumps(desc)), static=True)
+    _at_start(rec)
+    rec.log("/log", rr.TextLog(f"logged {len(photos)} photos, {len(res.pair_results)} pairs; "
+                               f"first view: reference {photos[focus].stem}", level=rr.TextLogLevel.INFO))
+    return desc
+
+
+def _at_start(rec) -> None:
+    rec.set_time("patch", sequence=0)
+    rec.set_time("supports", sequence=0)
+
+
+def log_images(res, rec, stems) -> None:
+    for p, s, kp in zip(res.photo_set.photos, stems, res.keypoints or [None] * len(stems)):
+        rec.log(f"/images/{s}", rr.Image(p.rgb).compress(jpeg_quality=85), static=True)
+        if kp is not None and len(kp):
+            rec.log(f"/images/{s}/keypoints", rr.Points2D(kp, radii=1.0, colors=[255, 255, 0]), static=True)
+
+
+def log_pair(res, rec, stems, i: int, j: int) -> None:
+    g = res.pairs[(i, j)]
+    base = f"/pairs/{stems[i]}/{stems[j]}"
+    rec.log(f"{base}/info", rr.TextDocument(
+        f"**{res.photo_set.photos[i].stem} → {res.photo_set.photos[j].stem}**: {g.status}"
+        f"{' — ' + g.reason if g.reason else ''}\n\n{g.n_matches} matches, {g.n_inliers} inliers, "
+        f"spread {g.spread:.0%}, homography share {g.homography_share:.0%}",
+        media_type=rr.MediaType.MARKDOWN), static=True)
+    for side, inl, out in (("ref", g.inliers_ref, g.outliers_ref), ("sup", g.inliers_sup, g.outliers_sup)):
+        if len(inl):
+            rec.log(f"{base}/{side}/inliers", rr.Points2D(inl, radii=2.0, colors=[0, 220, 0]), static=True)
+        if len(out):
+            rec.log(f"{base}/{side}/outliers", rr.Points2D(out, radii=1.5, colors=[230, 40, 40]), static=True)
+    r = res.pair_results.get((i, j))
+    if r is None:
+        return
+    size_r, size_s = res.photo_set.photos[i].size, res.photo_set.photos[j].size
+    if r.kind == "epipolar":
+        from .geometry import epipoles
+        e_r, e_s = epipoles(g.F)
+        for side, e, size in (("ref", e_r, size_r), ("sup", e_s, size_s)):
+            if abs(e[2]) > 1e-12:
+                xy = e[:2] / e[2]
+                if -0.5 <= xy[0] <= size[1] and -0.5 <= xy[1] <= size[0]:
+                    rec.log(f"{base}/{side}/epipole", rr.Points2D([xy], radii=6.0, colors=[255, 0, 255],
+                                                                  labels=["epipole"]), static=True)
+        st, sg = r.strips, r.segments
+        fan0 = np.nonzero(st.fan == 0)[0]
+        rays = []
+        for s_id in fan0:
+            for da in (-0.5,):
+                th = st.theta_c[s_id] + da * st.dtheta
+                d = np.array([np.cos(th), np.sin(th)])
+                t0 = st.t0[s_id]
+                t1 = t0 + st.n_along[s_id]
+                rays.append(np.array([st.epipole + t0 * d, st.epipole + t1 * d], np.float32))
+        if rays:
+            rec.log(f"{base}/ref/epilines", rr.LineStrips2D(rays, radii=0.6, colors=[255, 220, 0]), static=True)
+        lines = [seg for seg in (_clip_line(l, size_s) for l in sg.bound_a[np.isin(sg.strip, fan0)]) if seg is not None]
+        if lines:
+            rec.log(f"{base}/sup/epilines", rr.LineStrips2D(lines, radii=0.6, colors=[255, 220, 0]), static=True)
+    mp = res.match_prob(i, j)
+    rec.log(f"{base}/match_prob", rr.DepthImage(np.round(mp * 255).astype(np.uint8), meter=255.0,
+                                                colormap="turbo", depth_range=(0.0, 255.0)), static=True)
+
+
+def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float) -> None:
+    rec.log("/dynamic", rr.AnnotationContext([(0, "static", (0, 0, 0, 0)), (1, "dynamic", (255, 255, 255, 140)),
+                                              (2, "don't care", (80, 80, 255, 140))]), static=True)
+    for i, (p, s) in enumerate(zip(res.photo_set.photos, stems)):
+        dyn = res.dynamic[i]
+        if dyn is None:
+            continue
+        base = f"/dynamic/{s}"
+        rec.log(f"{base}/prob", rr.DepthImage(np.round(dyn * 65535).astype(np.uint16), meter=65535.0,
+                                              colormap="turbo", depth_range=(0.0, 65535.0)), static=True)
+        rec.log(f"{base}/mask", rr.SegmentationImage((dyn > threshold).astype(np.uint8)), static=True)
+        from .output import heat_overlay
+        rec.log(f"{base}/overlay", rr.Image(heat_overlay(p.rgb, dyn, dyn > threshold)).compress(jpeg_quality=85),
+                static=True)
+        if p.stem in gts:
+            import cv2
+            g = gts[p.stem]
+            g = cv2.resize(g, (p.size[1], p.size[0]), interpolation=cv2.INTER_NEAREST)
+            cls = np.where(g == 255, 1, np.where(g == 128, 2, 0)).astype(np.uint8)
+            rec.log(f"{base}/gt", rr.SegmentationImage(cls), static=True)
+        if p.stem in scores:
+            rec.log(f"{base}/jaccard", rr.TextDocument(f"Jaccard at {threshold:.2f}: {scores[p.stem]:.3f}"),
+                    static=True)
+        # the paper's Fig. 5: the map after 1, 2, ... k supports, made as the final map is
+        for k, sweep in enumerate(res.sweep(i), start=1):
+            # rows carry both timelines: on "patch" the sweep shows its last state, and vice versa
+            rec.set_time("supports", sequence=k)
+            rec.set_time("patch", sequence=0)
+            rec.log(f"{base}/sweep", rr.DepthImage(np.round(sweep * 255).astype(np.uint8), meter=255.0,
+                                                   colormap="turbo", depth_range=(0.0, 255.0)))
+        rec.reset_time()
+
+
+def log_candidates(res, rec, stems, i: int, j: int, pixels: np.ndarray) -> None:
+    """For each sampled pixel: the covering patch closest to it and all its candidates, on the
+    "patch" timeline, so a user can follow one patch from strip to candidates to maps."""
+    from .explain import patches_at
+    r = res.pair_results[(i, j)]
+    covering = patches_at(r, pixels)
+    chosen = []
+    for px, ids in zip(pixels, covering):
+        if len(ids) == 0:
+            continue
+        from .patches import ref_patch_quads
+        cen = ref_patch_quads(r.strips, r.patches.strip[ids], r.patches.start[ids]).mean(axis=1)
+        chosen.append(int(ids[np.argmin(np.linalg.norm(cen - px, axis=1))]))
+    if not chosen:
+        return
+    evidence = res.explain(i, j, patch_ids=np.array(chosen))
+    base = f"/pairs/{stems[i]}/{stems[j]}"
+    for k, ev in enumerate(evidence):
+        rec.set_time("patch", sequence=k)
+        rec.set_time("supports", sequence=0)
+        rec.log(f"{base}/ref/patches", rr.LineStrips2D(_closed(ev.ref_quad[None]), radii=1.5, colors=[0, 255, 255],
+                                                       labels=[f"patch {ev.patch}"]))
+        if len(ev.sim_hog) == 0:
+            rec.log(f"{base}/sup/candidates", rr.Clear(recursive=False))
+            rec.log(f"{base}/sup/best", rr.Clear(recursive=False))
+            continue
+        rec.log(f"{base}/sup/candidates", rr.LineStrips2D(_closed(ev.cand_quads), radii=0.4,
+                                                          colors=_heat(ev.sim_hog)))
+        best = [ev.best_hog, ev.best_color]
+        labels = [f"best HOG {ev.sim_hog[ev.best_hog]:.2f} (colour {ev.sim_color[ev.best_hog]:.2f})",
+                  f"best colour {ev.sim_color[ev.best_color]:.2f} (HOG {ev.sim_hog[ev.best_color]:.2f})"]
+        rec.log(f"{base}/sup/best", rr.LineStrips2D(_closed(ev.cand_quads[best]), radii=2.0,
+                                                    colors=[[255, 255, 255], [255, 0, 255]], labels=labels))
+    rec.reset_time()
+
+
+def log_metrics(res, rec) -> None:
+    rec.log("/metrics/pair_seconds", rr.SeriesLines(names=["seconds per pair"]), static=True)
+    for k, ((i, j), r) in enumerate(sorted(res.pair_results.items())):
+        rec.set_time("pair", sequence=k)
+        rec.log("/metrics/pair_seconds", rr.Scalars(r.seconds))
+    rec.log("/metrics/supports", rr.SeriesLines(names=["supports per photo"]), static=True)
+    for i, s in enumerate(res.supports):
+        rec.set_time("photo", sequence=i)
+        rec.log("/metrics/supports", rr.Scalars(float(len(s))))
+    rec.reset_time()
+    rec.log("/metrics/timings", rr.TextDocument("\n".join(f"- {k}: {v:.2f}" for k, v in res.timings.items()),
+                                                media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def make_blueprint(desc: dict) -> rrb.Blueprint:
+    """First screen: the reference with its overlays, a support with its corresponding lines,
+    the aggregate over the photo, per-support maps, the sweep, and the log."""
+    f = desc["focus"]
+    sups = desc["supports"]
+    s0 = sups[0] if sups else None
+    top = [rrb.Spatial2DView(name=f"reference {f}", origin="/",
+                             contents=[f"/images/{f}", f"/pairs/{f}/{s0}/ref/**"] if s0 else [f"/images/{f}"])]
+    if s0:
+        top.append(rrb.Spatial2DView(name=f"support {s0}", origin="/",
+                                     contents=[f"/images/{s0}", f"/pairs/{f}/{s0}/sup/**"]))
+    top.append(rrb.Spatial2DView(name=f"P_dynamic {f}", origin=f"/dynamic/{f}",
+                                 contents=[f"/dynamic/{f}/overlay"]))
+    maps = [rrb.Spatial2DView(name=f"P(x|{s})", origin=f"/pairs/{f}/{s}/match_prob") for s in sups[:6]]
+    bottom = [rrb.Grid(*maps, grid_columns=3, name="per-support maps")] if maps else []
+    bottom.append(rrb.Spatial2DView(name="support sweep (Fig. 5)", origin=f"/dynamic/{f}/sweep"))
+    bottom.append(rrb.Vertical(rrb.TextLogView(origin="/log", name="log"),
+                               rrb.TextDocumentView(origin=f"/pairs/{f}/{s0}/info" if s0 else "/params",
+                                                    name="pair")))
+    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom), row_shares=[3, 2]),
+                         rrb.TimePanel(timeline="patch", play_state="paused"), collapse_panels=True)
+
+
+def read_blueprint_desc(path) -> dict:
+    """The blueprint description stored in a recording (for `crowdcam view`)."""
+    from rerun.chunk import RrdReader
+    store = RrdReader(str(path)).store()
+    for ch in store.stream().filter(content=BLUEPRINT_ENTITY).to_chunks():
+        return json.loads(ch.to_record_batch().column("TextDocument:text")[0].as_py()[0])
+    raise ValueError(f"{path}: not a crowdcam recording (no {BLUEPRINT_ENTITY})")

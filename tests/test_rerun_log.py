@@ -1,0 +1,104 @@
+"""Rerun logging: record a small sample set and read it back (rerun.chunk.RrdReader)."""
+
+import json
+
+import numpy as np
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+from conftest import SAMPLE_SETS
+from pipeline.cache import PairCache
+from pipeline.loading import load_set
+from pipeline.params import get_preset
+from pipeline.rerun_log import choose_focus, log_run, part
+from pipeline.run import detect_set
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rr")
+    params = get_preset("default").replace(max_side=240)
+    ps = load_set(SAMPLE_SETS / "tabletop_ball", params.max_side)
+    res = detect_set(ps, params, PairCache(tmp / "cache"), workers=2)
+    path = tmp / "run.rrd"
+    rec = rr.RecordingStream("crowdcam", recording_id="test")
+    rec.save(str(path))
+    desc = log_run(res, rec)
+    rec.disconnect()
+    return res, desc, RrdReader(str(path)).store(), path
+
+
+def _chunks(store, entity):
+    return store.stream().filter(content=entity).to_chunks()
+
+
+def _image(rb, kind):
+    fmt = rb.column(f"{kind}:format")[0].as_py()[0]
+    dtype = {6: np.uint8, 8: np.uint16}[fmt["channel_datatype"]]
+    buf = rb.column(f"{kind}:buffer").flatten().flatten().to_numpy().tobytes()
+    return np.frombuffer(buf, dtype).reshape(fmt["height"], fmt["width"])
+
+
+def test_entity_tree(recording):
+    res, desc, store, _ = recording
+    paths = set(map(str, store.schema().entity_paths()))
+    f = desc["focus"]
+    s0 = desc["supports"][0]
+    for p in res.photo_set.photos:
+        assert f"/images/{part(p.stem)}" in paths
+    for e in (f"/pairs/{f}/{s0}/info", f"/pairs/{f}/{s0}/match_prob", f"/pairs/{f}/{s0}/ref/epilines",
+              f"/pairs/{f}/{s0}/sup/epilines", f"/pairs/{f}/{s0}/sup/candidates", f"/pairs/{f}/{s0}/ref/patches",
+              f"/dynamic/{f}/prob", f"/dynamic/{f}/mask", f"/dynamic/{f}/sweep", "/params", "/meta/blueprint"):
+        assert e in paths, e
+
+
+def test_logged_aggregate_equals_the_pipeline(recording):
+    res, desc, store, _ = recording
+    i = choose_focus(res)
+    (ch,) = _chunks(store, f"/dynamic/{desc['focus']}/prob")
+    logged = _image(ch.to_record_batch(), "DepthImage") / 65535.0
+    assert logged.shape == res.dynamic[i].shape
+    assert np.abs(logged - res.dynamic[i]).max() < 1e-4
+
+
+def test_match_prob_and_sweep(recording):
+    res, desc, store, _ = recording
+    i = choose_focus(res)
+    j = res.supports[i][0]
+    (ch,) = _chunks(store, f"/pairs/{desc['focus']}/{part(res.photo_set.photos[j].stem)}/match_prob")
+    assert np.abs(_image(ch.to_record_batch(), "DepthImage") / 255.0 - res.match_prob(i, j)).max() <= 0.5 / 255 + 1e-6
+    rows = []
+    for ch in _chunks(store, f"/dynamic/{desc['focus']}/sweep"):
+        rb = ch.to_record_batch()
+        for r in range(rb.num_rows):
+            rows.append((rb.column("supports")[r].as_py(), _image(rb.slice(r, 1), "DepthImage")))
+    rows.sort(key=lambda t: t[0])
+    assert [k for k, _ in rows] == list(range(1, len(res.supports[i]) + 1))
+    assert np.abs(rows[-1][1] / 255.0 - res.dynamic[i]).max() <= 0.5 / 255 + 1e-6
+
+
+def test_candidates_follow_the_patch_timeline(recording):
+    res, desc, store, _ = recording
+    f, s0 = desc["focus"], desc["supports"][0]
+    cand = [ch.to_record_batch() for ch in _chunks(store, f"/pairs/{f}/{s0}/sup/candidates")]
+    best = [ch.to_record_batch() for ch in _chunks(store, f"/pairs/{f}/{s0}/sup/best")]
+    steps = sorted(v for rb in cand for v in rb.column("patch").to_pylist())
+    assert len(steps) >= 4 and steps == sorted(set(steps))
+    n_strips = [len(rb.column("LineStrips2D:strips")[r].as_py()) for rb in cand for r in range(rb.num_rows)]
+    assert min(n_strips) > 10                           # every position along the strip, 3 widths
+    labels = [l for rb in best for r in range(rb.num_rows) for l in rb.column("LineStrips2D:labels")[r].as_py()]
+    assert any(l.startswith("best HOG") for l in labels) and any(l.startswith("best colour") for l in labels)
+
+
+def test_fan_is_one_batch_and_blueprint_is_stored(recording):
+    res, desc, store, path = recording
+    i = choose_focus(res)
+    j = res.supports[i][0]
+    r = res.pair_results[(i, j)]
+    (ch,) = _chunks(store, f"/pairs/{desc['focus']}/{part(res.photo_set.photos[j].stem)}/ref/epilines")
+    strips = ch.to_record_batch().column("LineStrips2D:strips")[0].as_py()
+    assert len(strips) == int((r.strips.fan == 0).sum())
+    (bp,) = _chunks(store, "/meta/blueprint")
+    assert json.loads(bp.to_record_batch().column("TextDocument:text")[0].as_py()[0]) == desc
+    assert path.stat().st_size < 150 * 2**20
