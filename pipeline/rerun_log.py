@@ -16,6 +16,7 @@ Entity tree (stems are the photos' file stems):
                                           corresponding lines), candidates (coloured by HOG
                                           similarity), best (best candidates, labelled with scores)
     /pairs/<ref>/<sup>/match_prob         P(x|I_sup), Eq. 2 (8-bit heat map)
+    /pairs/<ref>/<sup>/match_overlay      the same over the reference photo
     /dynamic/<ref>/prob                   P_dynamic, Eq. 3 (16-bit heat map)
     /dynamic/<ref>/mask                   mask at the threshold
     /dynamic/<ref>/overlay                heat map blended over the photo, mask outlined
@@ -185,6 +186,9 @@ def log_pair(res, rec, stems, i: int, j: int) -> None:
     mp = res.match_prob(i, j)
     rec.log(f"{base}/match_prob", rr.DepthImage(np.round(mp * 255).astype(np.uint8), meter=255.0,
                                                 colormap="turbo", depth_range=(0.0, 255.0)), static=True)
+    from .output import heat_overlay
+    rec.log(f"{base}/match_overlay", rr.Image(heat_overlay(res.photo_set.photos[i].rgb, mp)).compress(jpeg_quality=80),
+            static=True)
 
 
 def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float) -> None:
@@ -283,7 +287,8 @@ def make_blueprint(desc: dict) -> rrb.Blueprint:
                                      contents=[f"/images/{s0}", f"/pairs/{f}/{s0}/sup/**"]))
     top.append(rrb.Spatial2DView(name=f"P_dynamic {f}", origin=f"/dynamic/{f}",
                                  contents=[f"/dynamic/{f}/overlay"]))
-    maps = [rrb.Spatial2DView(name=f"P(x|{s})", origin=f"/pairs/{f}/{s}/match_prob") for s in sups[:6]]
+    maps = [rrb.Spatial2DView(name=f"P(x|{s})", origin=f"/pairs/{f}/{s}", contents=[f"/pairs/{f}/{s}/match_overlay"])
+            for s in sups[:6]]
     bottom = [rrb.Grid(*maps, grid_columns=3, name="per-support maps")] if maps else []
     bottom.append(rrb.Spatial2DView(name="support sweep (Fig. 5)", origin=f"/dynamic/{f}/sweep"))
     bottom.append(rrb.Vertical(rrb.TextLogView(origin="/log", name="log"),
