@@ -430,7 +430,7 @@ class Look:
 
 def random_look(rng: np.random.Generator, strength: float = 1.0) -> Look:
     wb = 1 + strength * rng.uniform(-0.12, 0.12, 3)
-    return Look(tuple(float(x) for x in wb / wb.mean()), float(1 + strength * rng.uniform(-0.25, 0.2)),
+    return Look(tuple(float(x) for x in wb / wb.mean()), float(max(0.4, 1 + strength * rng.uniform(-0.25, 0.2))),
                 float(1 + strength * rng.uniform(-0.12, 0.12)), float(rng.uniform(0.05, 0.3)),
                 float(rng.uniform(1.0, 2.5)), int(rng.integers(85, 94)))
 
@@ -455,6 +455,7 @@ class SetSpec:
     n_cameras: int
     seed: int
     build: Callable[[np.random.Generator], tuple[Callable[[float], Scene], list[Camera], list[float]]]
+    look_strength: float = 1.0     # scales the cameras' colour and exposure differences
 
 
 def _square_textures(rng) -> dict:
@@ -604,6 +605,85 @@ def build_plaza_many(rng):
     return scene_at, cams, times
 
 
+# ---- scenes that provoke the failure modes of the paper's method (issue 5) ----
+def _walkers(scene: Scene, t: float, walkers) -> None:
+    for (x, y), head, v, sh, tr, hgt in walkers:
+        add_person(scene, (x + v * np.cos(head) * t, y + v * np.sin(head) * t), head, t, sh, tr, hgt, phase=x)
+
+
+def _people_textures(rng, tex: dict) -> dict:
+    for name, c, st in (("shirt_a", (0.75, 0.15, 0.15), False), ("shirt_b", (0.15, 0.45, 0.3), True),
+                        ("trousers_a", (0.15, 0.2, 0.35), False), ("trousers_b", (0.3, 0.25, 0.2), False)):
+        tex[name] = tex_cloth(rng, color=c, stripes=st)
+    tex["skin"] = tex_plain(rng, (0.85, 0.65, 0.5), var=0.1)
+    return tex
+
+
+def build_facade_repeat(rng):
+    """Repeated texture: a facade of identical windows over periodic paving (wrong Fs fit it)."""
+    bay = np.ones((256, 256, 3), np.float32) * np.array([0.78, 0.72, 0.62])
+    cv2.rectangle(bay, (64, 40), (192, 200), (0.3, 0.3, 0.36), -1)
+    cv2.rectangle(bay, (64, 40), (192, 200), (0.45, 0.4, 0.35), 8)
+    cv2.line(bay, (128, 40), (128, 200), (0.45, 0.4, 0.35), 6)
+    cv2.rectangle(bay, (56, 200), (200, 214), (0.9, 0.88, 0.8), -1)
+    pattern = stones(rng, (0.5, 0.5), (0.55, 0.53, 0.5), var=0.3, joint=0.05)
+    vv, uu = np.mgrid[0:256, 0:256]
+    tile = pattern((uu.ravel() + 0.5) / 256 * 2.0, (vv.ravel() + 0.5) / 256 * 2.0).reshape(256, 256, 3)
+    tex = _people_textures(rng, {"bays": bay, "paving": np.ascontiguousarray(tile.astype(np.float32)),
+                                 "posters": tex_posters(rng, 512)})
+
+    def scene_at(t):
+        s = Scene(textures=tex)
+        s.quad([-15, -10, 0], [30, 0, 0], [0, 30, 0], "paving", tile=2.0)     # repeats every 2 m
+        s.quad([-15, 10, 0], [30, 0, 0], [0, 0, 12], "bays", tile=3.0)        # identical 3 m bays
+        s.box([4.0, 6.0, 0], (1.5, 1.0, 2.2), 0.2, "posters", tile=4.0)
+        _walkers(s, t, [((-4.0, 2.0), 0.2, 1.2, "shirt_a", "trousers_a", 1.78),
+                        ((3.0, 4.0), 3.0, 1.0, "shirt_b", "trousers_b", 1.68)])
+        return s
+    cams = _arc_cameras(rng, 6, (0, 3), 9.0, (-2.2, -0.9), (1.4, 3.0), (0.75, 1.2), SIZES)
+    return scene_at, cams, list(rng.permutation(np.linspace(0, 5, 6)))
+
+
+def build_street_sideways(rng):
+    """Cameras on a line at one height (horizontal epipolar lines); people walk along that line,
+    so in many pairs they slide along the epipolar lines and can match themselves."""
+    tex = _square_textures(rng)
+    tex = _people_textures(rng, tex)
+
+    def scene_at(t):
+        s = Scene(textures=tex)
+        _square_static(s)
+        _walkers(s, t, [((-5.0, 5.0), 0.0, 1.3, "shirt_a", "trousers_a", 1.78),
+                        ((4.0, 3.0), np.pi, 1.1, "shirt_b", "trousers_b", 1.66)])
+        return s
+    cams = []
+    for k, x in enumerate(np.linspace(-4.5, 4.5, 6)):
+        C = np.array([x + rng.normal(0, 0.2), -6.0 + rng.normal(0, 0.3), 1.6 + rng.normal(0, 0.03)])
+        tgt = np.array([x * 0.3 + rng.normal(0, 0.5), 8.0, 1.6])
+        size = SIZES[rng.integers(len(SIZES))]
+        cams.append(look_at(C, tgt, rng.uniform(0.75, 1.1) * max(size), size, rng.normal(0, 0.02)))
+    return scene_at, cams, list(rng.permutation(np.linspace(0, 5, 6)))
+
+
+def build_square_wb(rng):
+    """The square with strong white balance and exposure differences between cameras."""
+    scene_at, cams, times = build_square_people(rng)
+    return scene_at, cams[:6], times[:6]
+
+
+def build_square_same_spot(rng):
+    """Two spots, three shots from each (pure rotations): homography pairs within a spot,
+    epipolar pairs across spots."""
+    scene_at, _, _ = build_square_people(rng)
+    cams = []
+    for C in (np.array([-6.0, -5.0, 1.6]), np.array([5.0, -6.0, 2.2])):
+        for k in range(3):
+            tgt = np.array([0.0, 4.0, 1.2]) + np.array([rng.uniform(-3, 3), 0, rng.uniform(-0.5, 0.8)])
+            size = SIZES[rng.integers(len(SIZES))]
+            cams.append(look_at(C, tgt, rng.uniform(0.8, 1.2) * max(size), size, rng.normal(0, 0.05)))
+    return scene_at, cams, list(rng.permutation(np.linspace(0, 5, 6)))
+
+
 SETS: dict[str, SetSpec] = {s.name: s for s in [
     SetSpec("square_people", "three people walking across a town square (8 cameras)", 8, 11, build_square_people),
     SetSpec("tabletop_ball", "a ball rolling across a table in a room (7 cameras)", 7, 22, build_tabletop_ball),
@@ -611,6 +691,14 @@ SETS: dict[str, SetSpec] = {s.name: s for s in [
             build_courtyard_static),
     SetSpec("plaza_many", "two people, a pushed cart and a ball moving in a square (12 cameras)", 12, 44,
             build_plaza_many),
+    SetSpec("facade_repeat", "repeated texture: identical windows and periodic paving, two walkers", 6, 55,
+            build_facade_repeat),
+    SetSpec("street_sideways", "cameras in a line at one height, people walking along it", 6, 66,
+            build_street_sideways),
+    SetSpec("square_wb", "the square with strong white balance and exposure differences", 6, 77,
+            build_square_wb, look_strength=3.0),
+    SetSpec("square_same_spot", "two spots, three rotated shots from each: a mixed set", 6, 88,
+            build_square_same_spot),
 ]}
 
 
@@ -643,7 +731,7 @@ def write_set(spec: SetSpec, out: Path, scale: float = 1.0) -> None:
             K[0, 2], K[1, 2] = (ws - 1) / 2, (hs - 1) / 2
             cam = Camera(K, cam.R, cam.C, (hs, ws))
         rgb_lin, cov = render(scene_at(float(t)), cam)
-        look = random_look(rng)
+        look = random_look(rng, spec.look_strength)
         photo = develop(rgb_lin, look, rng)
         stem = f"cam{k:02d}"
         ok, jpg = cv2.imencode(".jpg", photo[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, look.jpeg])
