@@ -28,6 +28,8 @@ class GeometryParams:
     max_instability_px: float = 3.0    # median epipolar distance of inliers under an F re-fitted on half the data
     homography_pairs: bool = False     # paper: drop degenerate pairs; default: keep them as homography pairs
     homography_parallax_frac: float = 0.0125   # 95th pct. transfer error of static matches / max side (8 px at 640)
+    triplet_check: bool = False        # paper: two-view tests only; default: pairs must agree across triplets
+    triplet_max_px: float = 4.0        # median chained epipolar distance for a consistent triplet
 
 
 @dataclass(frozen=True)
@@ -108,7 +110,7 @@ PRESETS: dict[str, Params] = {
     # Ours (issue 5, in progress): departures are listed in the README with their measured effect.
     "default": Params(
         preset="default",
-        geometry=GeometryParams(homography_pairs=True),
+        geometry=GeometryParams(homography_pairs=True, triplet_check=True),
         descriptors=DescriptorParams(color_normalise=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02),
     ),

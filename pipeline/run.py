@@ -26,7 +26,7 @@ from .matching import PairResult, match_pair
 from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
-from .support import PairGeometry, estimate_pair, support_sets
+from .support import PairGeometry, estimate_pair, support_sets, triplet_check
 
 Progress = Callable[[str, int, int], None]
 MAP_FIELDS = ("hog_map", "color_map", "evidence")
@@ -243,6 +243,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             runner.map(_task_geometry, [(i, j, feats[i], feats[j]) for i, j in todo], got_geometry)
         for (i, j) in list(pairs):
             pairs[(j, i)] = pairs[(i, j)].reversed()
+        if params.geometry.triplet_check:
+            pairs = triplet_check(pairs, n, params.geometry.triplet_max_px)
         supports = support_sets(pairs, n)
         timings["geometry_s"] = time.perf_counter() - t0
         if n >= 2 and not any(supports):

@@ -170,6 +170,60 @@ def _homography_pair(i, j, F, p_ref, p_sup, size_i, size_j, scale, hshare, p: Ge
                   inl, spread, hshare, scale=scale, H=H / H[2, 2])
 
 
+def _chained(pairs, i: int, j: int, k: int, min_tracks: int = 8) -> float | None:
+    """Median distance of chained matches x_j <- x_i -> x_k to their epipolar lines under F_jk
+    (the keypoints of photo i matched, as inliers, in both (i, j) and (i, k)); None if too few."""
+    g_ij, g_ik, g_jk = pairs[(i, j)], pairs[(i, k)], pairs[(j, k)]
+    index = {row.tobytes(): n for n, row in enumerate(np.ascontiguousarray(g_ij.inliers_ref, np.float32))}
+    a, b = [], []
+    for n, row in enumerate(np.ascontiguousarray(g_ik.inliers_ref, np.float32)):
+        m = index.get(row.tobytes())
+        if m is not None:
+            a.append(m)
+            b.append(n)
+    if len(a) < min_tracks:
+        return None
+    return float(np.median(symmetric_epipolar_distance(g_jk.F, g_ij.inliers_sup[a], g_ik.inliers_sup[b])))
+
+
+def triplet_check(pairs: dict[tuple[int, int], PairGeometry], n: int, max_px: float
+                  ) -> dict[tuple[int, int], PairGeometry]:
+    """Departure (default preset): reject epipolar pairs that disagree with the other pairs.
+
+    Repeated texture makes SIFT match the wrong copy; the wrong F then fits its inliers in two
+    views and passes every two-view test. Three views expose it: for a triplet (a, b, c), matches
+    chained through one photo must satisfy the F of the other two. A triplet is consistent when
+    its three closings stay within `max_px` (median). A pair that sits in evaluable triplets and is
+    consistent in fewer than half of them is rejected. Returns the updated pairs (both orders).
+    """
+    import dataclasses
+    ok = lambda a, b: pairs[(a, b)].status == OK
+    votes: dict[tuple[int, int], list[int]] = {}
+    for a in range(n):
+        for b in range(a + 1, n):
+            for c in range(b + 1, n):
+                if not (ok(a, b) and ok(a, c) and ok(b, c)):
+                    continue
+                closings = [_chained(pairs, a, b, c), _chained(pairs, b, a, c), _chained(pairs, c, a, b)]
+                closings = [x for x in closings if x is not None]
+                if not closings:
+                    continue
+                good = max(closings) <= max_px
+                for e in ((a, b), (a, c), (b, c)):
+                    v = votes.setdefault(e, [0, 0])
+                    v[0] += good
+                    v[1] += 1
+    out = dict(pairs)
+    for (a, b), (n_good, n_eval) in votes.items():
+        if n_eval >= 2 and n_good / n_eval < 0.5:
+            g = dataclasses.replace(pairs[(a, b)], status=REJECTED,
+                                    reason=f"inconsistent with the other pairs: {n_eval - n_good} of {n_eval} "
+                                           "triplets disagree (repeated texture?)")
+            out[(a, b)] = g
+            out[(b, a)] = g.reversed()
+    return out
+
+
 def support_sets(pairs: dict[tuple[int, int], PairGeometry], n: int) -> list[list[int]]:
     """For each reference index, the sorted indices of its admitted support images."""
     return [sorted(j for j in range(n) if j != i and pairs[(i, j)].ok) for i in range(n)]

@@ -51,3 +51,35 @@ def test_fundamental_to_original_resolution(camera_pair):
     assert np.max(symmetric_epipolar_distance(F_work, to_work(xr, s_r), to_work(xs, s_s))) < 1e-6
     back = fundamental_to_original(F_work, s_r, s_s)
     assert np.max(symmetric_epipolar_distance(back, xr, xs)) < 1e-6
+
+
+def test_triplet_check_rejects_a_pair_fooled_by_repetition():
+    """Four cameras see the same points; pair (0, 1) matched every point to a copy one 'period'
+    away (as repeated texture does) and fitted an F to that. Three views expose it."""
+    import cv2
+
+    from conftest import look_at
+    from pipeline.geometry import fundamental_from_cameras
+    from pipeline.support import OK, REJECTED, PairGeometry, triplet_check
+
+    cams = [look_at([x, -8, 1.6 + 0.3 * k], [0, 0, 1.0], 500.0, (480, 640), 0.02 * k)
+            for k, x in enumerate([-3.0, -1.0, 1.0, 3.0])]
+    rng = np.random.default_rng(0)
+    X = np.column_stack([rng.uniform(-4, 4, 300), rng.uniform(-1, 5, 300), rng.uniform(0, 3, 300)])
+    xs = [project(c, X).astype(np.float32) for c in cams]
+    pairs = {}
+    for i in range(4):
+        for j in range(i + 1, 4):
+            a, b = xs[i], xs[j]
+            F = fundamental_from_cameras(cams[i].P, cams[j].P)
+            if (i, j) == (0, 1):
+                shifted = project(cams[1], X + np.array([0.8, 0.0, 0.0])).astype(np.float32)
+                b = shifted
+                F, _ = cv2.findFundamentalMat(a, b, cv2.FM_8POINT)
+            empty = np.zeros((0, 2), np.float32)
+            g = PairGeometry(i, j, F, OK, "", 300, 300, 0.5, 0.5, 0.1, 1.0, a, b, empty, empty)
+            pairs[(i, j)], pairs[(j, i)] = g, g.reversed()
+    out = triplet_check(pairs, 4, 4.0)
+    assert out[(0, 1)].status == REJECTED and "triplets disagree" in out[(0, 1)].reason
+    assert out[(1, 0)].status == REJECTED
+    assert all(out[(i, j)].status == OK for i in range(4) for j in range(4) if i != j and {i, j} != {0, 1})
