@@ -17,6 +17,7 @@ Entity tree (stems are the photos' file stems):
                                           similarity), best (best candidates, labelled with scores)
     /pairs/<ref>/<sup>/match_prob         P(x|I_sup), Eq. 2 (8-bit heat map)
     /pairs/<ref>/<sup>/match_overlay      the same over the reference photo
+    /pairs/<ref>/<sup>/no_evidence        where the support has no candidate (class 1)
     /dynamic/<ref>/prob                   P_dynamic, Eq. 3 (16-bit heat map)
     /dynamic/<ref>/mask                   mask at the threshold
     /dynamic/<ref>/overlay                heat map blended over the photo, mask outlined
@@ -112,6 +113,8 @@ def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.n
     for msg in list(res.photo_set.warnings) + list(res.warnings):
         rec.log("/log", rr.TextLog(msg, level=rr.TextLogLevel.WARN))
     log_images(res, rec, stems)
+    rec.log("/pairs", rr.AnnotationContext([(0, "evidence", (0, 0, 0, 0)), (1, "no evidence", (255, 0, 255, 120))]),
+            static=True)
     for (i, j), g in sorted(res.pairs.items()):
         log_pair(res, rec, stems, i, j)
     log_dynamic(res, rec, stems, gts or {}, scores or {}, threshold)
@@ -186,6 +189,8 @@ def log_pair(res, rec, stems, i: int, j: int) -> None:
     mp = res.match_prob(i, j)
     rec.log(f"{base}/match_prob", rr.DepthImage(np.round(mp * 255).astype(np.uint8), meter=255.0,
                                                 colormap="turbo", depth_range=(0.0, 255.0)), static=True)
+    # where the support holds no candidate (out of its view): "no evidence", neutral in `default`
+    rec.log(f"{base}/no_evidence", rr.SegmentationImage((r.evidence < 0.5).astype(np.uint8)), static=True)
     from .output import heat_overlay
     rec.log(f"{base}/match_overlay", rr.Image(heat_overlay(res.photo_set.photos[i].rgb, mp)).compress(jpeg_quality=80),
             static=True)

@@ -48,7 +48,7 @@ def test_entity_tree(recording):
     for p in res.photo_set.photos:
         assert f"/images/{part(p.stem)}" in paths
     for e in (f"/pairs/{f}/{s0}/info", f"/pairs/{f}/{s0}/match_prob", f"/pairs/{f}/{s0}/ref/epilines",
-              f"/pairs/{f}/{s0}/sup/epilines", f"/pairs/{f}/{s0}/sup/candidates", f"/pairs/{f}/{s0}/ref/patches",
+              f"/pairs/{f}/{s0}/sup/epilines", f"/pairs/{f}/{s0}/sup/candidates", f"/pairs/{f}/{s0}/no_evidence", f"/pairs/{f}/{s0}/ref/patches",
               f"/dynamic/{f}/prob", f"/dynamic/{f}/mask", f"/dynamic/{f}/sweep", "/params", "/meta/blueprint"):
         assert e in paths, e
 
