@@ -657,7 +657,7 @@ def build_street_sideways(rng):
                         ((4.0, 3.0), np.pi, 1.1, "shirt_b", "trousers_b", 1.66)])
         return s
     cams = []
-    for k, x in enumerate(np.linspace(-4.5, 4.5, 6)):
+    for x in np.linspace(-4.5, 4.5, 6):
         C = np.array([x + rng.normal(0, 0.2), -6.0 + rng.normal(0, 0.3), 1.6 + rng.normal(0, 0.03)])
         tgt = np.array([x * 0.3 + rng.normal(0, 0.5), 8.0, 1.6])
         size = SIZES[rng.integers(len(SIZES))]
@@ -677,7 +677,7 @@ def build_square_same_spot(rng):
     scene_at, _, _ = build_square_people(rng)
     cams = []
     for C in (np.array([-6.0, -5.0, 1.6]), np.array([5.0, -6.0, 2.2])):
-        for k in range(3):
+        for _ in range(3):
             tgt = np.array([0.0, 4.0, 1.2]) + np.array([rng.uniform(-3, 3), 0, rng.uniform(-0.5, 0.8)])
             size = SIZES[rng.integers(len(SIZES))]
             cams.append(look_at(C, tgt, rng.uniform(0.8, 1.2) * max(size), size, rng.normal(0, 0.05)))

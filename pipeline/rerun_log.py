@@ -115,7 +115,7 @@ def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.n
     log_images(res, rec, stems)
     rec.log("/pairs", rr.AnnotationContext([(0, "evidence", (0, 0, 0, 0)), (1, "no evidence", (255, 0, 255, 120))]),
             static=True)
-    for (i, j), g in sorted(res.pairs.items()):
+    for i, j in sorted(res.pairs):
         log_pair(res, rec, stems, i, j)
     log_dynamic(res, rec, stems, gts or {}, scores or {}, threshold)
     if res.dynamic[focus] is not None:
@@ -267,7 +267,7 @@ def log_candidates(res, rec, stems, i: int, j: int, pixels: np.ndarray) -> None:
 
 def log_metrics(res, rec) -> None:
     rec.log("/metrics/pair_seconds", rr.SeriesLines(names=["seconds per pair"]), static=True)
-    for k, ((i, j), r) in enumerate(sorted(res.pair_results.items())):
+    for k, (_, r) in enumerate(sorted(res.pair_results.items())):
         rec.set_time("pair", sequence=k)
         rec.log("/metrics/pair_seconds", rr.Scalars(r.seconds))
     rec.log("/metrics/supports", rr.SeriesLines(names=["supports per photo"]), static=True)
