@@ -66,29 +66,31 @@ def remap(p: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return lo + (hi - lo) * p
 
 
+def _log_odds(p: np.ndarray, ap: AggregateParams) -> np.ndarray:
+    """log(q / (1 - q)) of the remapped P(x|I_s), float64."""
+    q = np.clip(remap(p.astype(np.float64), *ap.remap), 1e-9, 1 - 1e-9)
+    return np.log(q) - np.log1p(-q)
+
+
+def _dynamic(logit: np.ndarray) -> np.ndarray:
+    return (1.0 - 1.0 / (1.0 + np.exp(-logit))).astype(np.float32)
+
+
 def combine(match_probs: Sequence[np.ndarray], ap: AggregateParams) -> np.ndarray:
     """Eq. 3: P_dynamic(x) = 1 - prod p / (prod p + prod (1 - p)) over remapped P(x|I_s).
 
     match_probs: k arrays (h, w) in [0, 1]. Computed as a sum of log-odds (exact, and stable for
-    many supports). With no supports the result is 0.5 everywhere (no evidence either way).
+    many supports).
     """
     if len(match_probs) == 0:
         raise ValueError("no support maps to combine")
-    lo, hi = ap.remap
-    logit = np.zeros(match_probs[0].shape, np.float64)
-    for p in match_probs:
-        q = np.clip(remap(p.astype(np.float64), lo, hi), 1e-9, 1 - 1e-9)
-        logit += np.log(q) - np.log1p(-q)
-    p_static = 1.0 / (1.0 + np.exp(-logit))
-    return (1.0 - p_static).astype(np.float32)
+    return _dynamic(sum(_log_odds(p, ap) for p in match_probs))
 
 
 def cumulative_dynamic(match_probs: Sequence[np.ndarray], ap: AggregateParams):
     """P_dynamic after 1, 2, ..., k supports (the paper's Fig. 5), one running log-odds sum:
     yields k maps (h, w) float32, each equal to combine(match_probs[:k])."""
-    lo, hi = ap.remap
-    logit = np.zeros(match_probs[0].shape, np.float64) if len(match_probs) else None
+    logit = 0.0
     for p in match_probs:
-        q = np.clip(remap(p.astype(np.float64), lo, hi), 1e-9, 1 - 1e-9)
-        logit += np.log(q) - np.log1p(-q)
-        yield (1.0 - 1.0 / (1.0 + np.exp(-logit))).astype(np.float32)
+        logit = logit + _log_odds(p, ap)
+        yield _dynamic(logit)

@@ -70,3 +70,13 @@ def test_normaliser_uses_the_range_over_all_pairs():
     n = Normaliser.from_confidences([np.array([0.2, np.nan, 0.9]), np.array([0.4])],
                                     [np.array([0.1]), np.array([0.6, 0.3])])
     assert n.hog == (0.2, 0.9) and n.color == (0.1, 0.6)
+
+
+def test_support_sweep_equals_combining_each_prefix():
+    from pipeline.aggregate import cumulative_dynamic
+    rng = np.random.default_rng(0)
+    probs = [rng.random((6, 7)).astype(np.float32) for _ in range(5)]
+    sweep = list(cumulative_dynamic(probs, AP))
+    assert len(sweep) == 5
+    for k, m in enumerate(sweep, start=1):
+        assert np.array_equal(m, combine(probs[:k], AP))
