@@ -8,6 +8,7 @@ goes on. Nothing else parses argv.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -110,25 +111,28 @@ def cmd_detect(args) -> int:
     rep.close()
     res.timings["total_s"] = time.perf_counter() - t0
     extra = {}
+    gts = {}
     if photo_set.gt_dir is not None:
-        probs, gts = {}, {}
-        for p, d in zip(photo_set.photos, res.dynamic):
+        for p in photo_set.photos:
             g = load_gt(photo_set.gt_dir, p.stem, p.orig_size)
-            if d is not None and g is not None:
-                probs[p.stem], gts[p.stem] = to_original(d, p), g
-        if probs:
-            score = score_set(probs, gts)
-            extra["evaluation"] = score.to_dict()
-            rep.info(_table_row(photo_set.name, score))
+            if g is not None:
+                gts[p.stem] = g
+    probs = {p.stem: to_original(d, p) for p, d in zip(photo_set.photos, res.dynamic)
+             if d is not None and p.stem in gts}
+    if probs:
+        score = score_set(probs, {k: gts[k] for k in probs})
+        extra["evaluation"] = score.to_dict()
+        rep.info(_table_row(photo_set.name, score))
+    live = None
     if args.rrd or args.rerun_web:
-        extra["rerun_s"] = _log_rerun(args, res, photo_set, threshold, extra.get("evaluation"), rep)
+        extra["rerun_s"], live = _log_rerun(args, res, photo_set, threshold, gts, extra.get("evaluation"), rep)
     write_outputs(res, out, threshold, extra)
     n_ok = sum(d is not None for d in res.dynamic)
     n_pairs = len(res.pair_results)
     rep.info(f"wrote {n_ok} maps to {out} ({n_pairs} ordered pairs, "
              f"{res.timings['total_s']:.1f} s, {res.cache_hits} cached)")
-    if args.rerun_web:
-        _serve_live(args, rep)
+    if live is not None:
+        _serve_live(live)
     return 0
 
 
@@ -142,14 +146,16 @@ def _parse_pixels(specs: list[str] | None):
         raise CliError(f"--rr-pixel takes X,Y in working-resolution pixels (got {specs})") from None
 
 
-def _log_rerun(args, res, photo_set, threshold, evaluation, rep) -> float:
-    """Record the run (--rrd FILE, written atomically) and/or stream it live (--rerun-web)."""
+def _log_rerun(args, res, photo_set, threshold, gts, evaluation, rep):
+    """Record the run (--rrd FILE, written atomically) and/or stream it live (--rerun-web).
+
+    Returns (seconds spent, live) where live is (viewer, recording stream) to keep serving, or None.
+    """
     import os
     import tempfile
 
     import rerun as rr
 
-    from pipeline.loading import load_gt
     from pipeline.rerun_log import log_run, make_blueprint
 
     t0 = time.perf_counter()
@@ -159,58 +165,76 @@ def _log_rerun(args, res, photo_set, threshold, evaluation, rep) -> float:
         if args.rr_ref not in stems:
             raise CliError(f"--rr-ref {args.rr_ref}: no photo with that stem in the set")
         focus = stems.index(args.rr_ref)
-    gts = {}
-    if photo_set.gt_dir is not None:
-        for p in photo_set.photos:
-            g = load_gt(photo_set.gt_dir, p.stem, p.orig_size)
-            if g is not None:
-                gts[p.stem] = g
     scores = (evaluation or {}).get("per_image_at_set", {})
     rec = rr.RecordingStream("crowdcam", recording_id=f"{photo_set.name}-{int(time.time())}")
-    tmp = None
-    if args.rrd:
-        target = Path(args.rrd)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
-        os.close(fd)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)       # mkstemp makes 0600; the recording is an ordinary file
-        rec.save(tmp)
-    if args.rerun_web:
-        from crowdcam.rerun_web import RerunWeb
-        args._web = RerunWeb()
-        rec.connect_grpc(args._web.grpc_uri)    # live; the file sink above keeps writing too
+    tmp, web, sinks = None, None, []
     try:
+        if args.rrd:
+            target = Path(args.rrd)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
+            os.close(fd)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)       # mkstemp makes 0600; the recording is an ordinary file
+            sinks.append(rr.FileSink(tmp))
+        if args.rerun_web:
+            from crowdcam.rerun_web import RerunWeb
+            web = RerunWeb()
+            sinks.append(rr.GrpcSink(web.grpc_uri))
+        rec.set_sinks(*sinks)                   # one stream, written to the file and streamed live
         desc = log_run(res, rec, focus=focus, pixels=_parse_pixels(args.rr_pixel), gts=gts, scores=scores,
                        threshold=threshold)
         rec.send_blueprint(make_blueprint(desc))
         rec.flush()
-        if args.rerun_web:
-            args._rec = rec
-        else:
-            rec.disconnect()
+        if web is not None:                     # the file is finished when the live session ends
+            live, tmp = _LiveSession(web, rec, tmp, args.rrd, rep), None
+            return time.perf_counter() - t0, live
         if tmp:
-            if args.rerun_web:
-                rec.flush()
-            os.replace(tmp, args.rrd)
+            rec.disconnect()                    # closes the file with its footer
+            _publish(tmp, args.rrd, rep)
             tmp = None
-            rep.info(f"recorded {args.rrd} ({Path(args.rrd).stat().st_size / 2**20:.1f} MB); "
-                     f"view it with: crowdcam view {args.rrd}")
+    except BaseException:
+        if web is not None:
+            rec.disconnect()
+            web.close()
+        raise
     finally:
         if tmp and os.path.exists(tmp):
             os.unlink(tmp)
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, None
 
 
-def _serve_live(args, rep) -> None:
+def _publish(tmp: str, target: str, rep) -> None:
+    """Move a closed recording into place (atomic rename)."""
+    import os
+    os.replace(tmp, target)
+    rep.info(f"recorded {target} ({Path(target).stat().st_size / 2**20:.1f} MB); view it with: crowdcam view {target}")
+
+
+@dataclasses.dataclass
+class _LiveSession:
+    """A run being served live; the recording file (if any) is published when it ends."""
+    web: object
+    rec: object
+    tmp: str | None
+    target: str | None
+    rep: Reporter
+
+
+def _serve_live(live: _LiveSession) -> None:
+    import os
+
     from crowdcam.rerun_web import wait_until_interrupted
-    print(f"Rerun web viewer: {args._web.url}  (Ctrl-C to stop)", flush=True)
+    print(f"Rerun web viewer: {live.web.url}  (Ctrl-C to stop)", flush=True)
     try:
         wait_until_interrupted()
     finally:
-        args._rec.disconnect()
-        args._web.close()
+        live.rec.disconnect()                   # also writes the file's footer
+        live.web.close()
+        if live.tmp:
+            if os.path.exists(live.tmp):
+                _publish(live.tmp, live.target, live.rep)
 
 
 def cmd_view(args) -> int:

@@ -70,7 +70,7 @@ def find_image_dir(root: Path) -> tuple[Path, Path | None]:
     return root, None
 
 
-def _decode(path: Path) -> np.ndarray:
+def decode_photo(path: Path) -> np.ndarray:
     """Decode a file to (H, W, 3) uint8 RGB with EXIF orientation applied."""
     try:
         size = path.stat().st_size
@@ -111,7 +111,7 @@ def resize_to_max_side(rgb: np.ndarray, max_side: int) -> tuple[np.ndarray, floa
 
 def load_photo(path: Path, max_side: int) -> Photo:
     path = Path(path)
-    raw = _decode(path)
+    raw = decode_photo(path)
     rgb, scale = resize_to_max_side(raw, max_side)
     h = hashlib.sha256()
     with open(path, "rb") as f:

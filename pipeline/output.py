@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .geometry import fundamental_to_original
-from .loading import Photo
+from .loading import Photo, decode_photo
 from .run import SetResult
 
 
@@ -113,5 +113,4 @@ def write_outputs(res: SetResult, out_dir: Path, threshold: float, extra: dict |
 
 def _original_rgb(photo: Photo) -> np.ndarray:
     """The photo at original resolution (decoded again; the set keeps only the working copy)."""
-    from .loading import _decode
-    return _decode(photo.path)
+    return decode_photo(photo.path)

@@ -107,26 +107,20 @@ def _image_corners(size: tuple[int, int], margin: float = 1.0) -> np.ndarray:
                      [-margin, h - 1 + margin]], dtype=np.float64)
 
 
-def _ray_box_interval(origin: np.ndarray, dirs: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters [t_in, t_out] where rays origin + t*dirs (t >= 0) are inside the image box.
-
-    dirs: (N, 2). Returns (N,) arrays; t_in > t_out when the ray misses.
-    """
-    lo = _image_corners(size)[0]
-    hi = _image_corners(size)[2]
+def _line_box_interval(A: np.ndarray, B: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Slab test: the parameter interval [t_in, t_out] where points A + t B (per row; A, B (N, 2))
+    lie inside the image box (1 px margin). t_in > t_out when the line misses the box."""
+    lo, hi = _image_corners(size)[0], _image_corners(size)[2]
+    A = np.broadcast_to(A, B.shape)
     with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo[None] - origin[None]) / dirs
-        t2 = (hi[None] - origin[None]) / dirs
-    tmin = np.where(np.isnan(t1), -np.inf, np.minimum(t1, t2))
-    tmax = np.where(np.isnan(t1), np.inf, np.maximum(t1, t2))
-    # a direction component of 0 leaves t unbounded on that axis only if origin is inside the slab
-    zero = dirs == 0
-    inside = (origin[None] >= lo[None]) & (origin[None] <= hi[None])
-    tmin = np.where(zero, np.where(inside, -np.inf, np.inf), tmin)
-    tmax = np.where(zero, np.where(inside, np.inf, -np.inf), tmax)
-    t_in = np.maximum(tmin.max(axis=1), 0.0)
-    t_out = tmax.min(axis=1)
-    return t_in, t_out
+        t1 = (lo[None] - A) / B
+        t2 = (hi[None] - A) / B
+    # a direction component of 0 leaves t unbounded on that axis only if A is inside the slab
+    zero = np.abs(B) < 1e-15
+    inside = (A >= lo[None]) & (A <= hi[None])
+    tmin = np.where(zero, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+    tmax = np.where(zero, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+    return tmin.max(axis=1), tmax.min(axis=1)
 
 
 def build_ref_strips(e_h: np.ndarray, size: tuple[int, int], L: int, along_overlap: int, rows: int,
@@ -172,7 +166,8 @@ def build_ref_strips(e_h: np.ndarray, size: tuple[int, int], L: int, along_overl
     for da in (-0.5, 0.0, 0.5):
         th = theta_c + da * dtheta
         dirs = np.stack([np.cos(th), np.sin(th)], axis=1)
-        ti, to = _ray_box_interval(e, dirs, size)
+        ti, to = _line_box_interval(e[None], dirs, size)
+        ti = np.maximum(ti, 0.0)                 # rays: t >= 0
         hit = ti <= to
         # project onto the central direction: t_central = t * cos(da * dtheta)
         cs = np.cos(da * dtheta)
@@ -338,8 +333,6 @@ def _line_box_s(lines: np.ndarray, foot: np.ndarray, d: np.ndarray, n: np.ndarra
     """For lines (S, 3) and per-strip frames, the along-coordinate interval where each line is in
     the image: the line point at along s is foot + s d + u n with u = -(l.(foot + s d)) / (l.n).
     Returns (s_min, s_max), NaN when the line misses the image."""
-    h, w = size
-    lo, hi = _image_corners(size)[0], _image_corners(size)[2]
     # point(s) = foot + s d + u(s) n, u(s) = -(l0 + s l1) / ln  with l0 = l.foot1, l1 = l.d, ln = l.n
     l0 = lines[:, 0] * foot[:, 0] + lines[:, 1] * foot[:, 1] + lines[:, 2]
     l1 = lines[:, 0] * d[:, 0] + lines[:, 1] * d[:, 1]
@@ -348,21 +341,9 @@ def _line_box_s(lines: np.ndarray, foot: np.ndarray, d: np.ndarray, n: np.ndarra
     # point(s) = A + s B with A = foot - l0/ln n, B = d - l1/ln n
     A = foot - (l0 / ln)[:, None] * n
     B = d - (l1 / ln)[:, None] * n
-    ti, to = _ray_box_interval_general(A, B, lo, hi)
+    ti, to = _line_box_interval(A, B, size)
     ok = ti <= to
     return np.where(ok, ti, np.nan), np.where(ok, to, np.nan)
-
-
-def _ray_box_interval_general(A: np.ndarray, B: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """Parameter interval where A + s B (per row, s unbounded) lies in the box [lo, hi]."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo[None] - A) / B
-        t2 = (hi[None] - A) / B
-    zero = np.abs(B) < 1e-15
-    inside = (A >= lo[None]) & (A <= hi[None])
-    tmin = np.where(zero, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
-    tmax = np.where(zero, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
-    return tmin.max(axis=1), tmax.min(axis=1)
 
 
 def build_support_segments(F: np.ndarray, st: RefStrips, ref_size: tuple[int, int],

@@ -173,15 +173,12 @@ def log_pair(res, rec, stems, i: int, j: int) -> None:
                                                                   labels=["epipole"]), static=True)
         st, sg = r.strips, r.segments
         fan0 = np.nonzero(st.fan == 0)[0]
-        rays = []
-        for s_id in fan0:
-            for da in (-0.5,):
-                th = st.theta_c[s_id] + da * st.dtheta
-                d = np.array([np.cos(th), np.sin(th)])
-                t0 = st.t0[s_id]
-                t1 = t0 + st.n_along[s_id]
-                rays.append(np.array([st.epipole + t0 * d, st.epipole + t1 * d], np.float32))
-        if rays:
+        # one boundary ray per strip of fan 0, from its first to its last sample: (S, 2, 2)
+        th = st.theta_c[fan0] - 0.5 * st.dtheta
+        d = np.stack([np.cos(th), np.sin(th)], axis=1)
+        t0, t1 = st.t0[fan0], st.t0[fan0] + st.n_along[fan0]
+        rays = np.stack([st.epipole + t0[:, None] * d, st.epipole + t1[:, None] * d], axis=1).astype(np.float32)
+        if len(rays):
             rec.log(f"{base}/ref/epilines", rr.LineStrips2D(rays, radii=0.6, colors=[255, 220, 0]), static=True)
         lines = [seg for seg in (_clip_line(l, size_s) for l in sg.bound_a[np.isin(sg.strip, fan0)]) if seg is not None]
         if lines:

@@ -124,7 +124,7 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     H, hmask = cv2.findHomography(p_ref[inl], p_sup[inl], cv2.USAC_MAGSAC, p.ransac_px * 2.0, None, 10000, 0.9999)
     hshare = float(hmask.sum()) / n_in if H is not None else 0.0
     if hshare >= p.max_homography_share and p.homography_pairs:
-        return _homography_pair(i, j, F, p_ref, p_sup, size_i, size_j, scale, hshare, p, result)
+        return _homography_pair(i, j, F, inl, p_ref, p_sup, size_i, size_j, scale, hshare, p, result)
     if hshare >= p.max_homography_share:
         return result(F, REJECTED, f"degenerate: one homography explains {hshare:.0%} of the inliers "
                       "(dominant plane, pure rotation or no baseline)", inl, spread, hshare, scale=scale)
@@ -143,7 +143,7 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     return result(F, OK, "", inl, spread, hshare, instab, scale)
 
 
-def _homography_pair(i, j, F, p_ref, p_sup, size_i, size_j, scale, hshare, p: GeometryParams, result):
+def _homography_pair(i, j, F, f_inl, p_ref, p_sup, size_i, size_j, scale, hshare, p: GeometryParams, result):
     """Departure (default preset): a pair whose static scene one homography explains (same spot,
     pure rotation, distant or planar scene) is kept as a homography pair instead of dropped.
     Its epipolar strip collapses to the point H gives, which makes it the most informative kind."""
@@ -157,8 +157,8 @@ def _homography_pair(i, j, F, p_ref, p_sup, size_i, size_j, scale, hshare, p: Ge
         return result(F, REJECTED, f"degenerate F, and the homography has {n_in} inliers covering {spread:.0%}",
                       inl, spread, hshare, scale=scale)
     # Static points off the dominant plane show parallax after alignment. The point-to-point
-    # comparison searches only a small window, so every matched static point must land within it.
-    _, f_inl = _fit_f(p_ref, p_sup, p.ransac_px)
+    # comparison searches only a small window, so every matched static point (the F inliers
+    # f_inl) must land within it.
     ph = np.concatenate([p_ref[f_inl], np.ones((int(f_inl.sum()), 1), np.float32)], axis=1) @ H.T
     transfer = np.linalg.norm(ph[:, :2] / ph[:, 2:3] - p_sup[f_inl], axis=1)
     parallax = float(np.percentile(transfer, 95)) if len(transfer) else 0.0

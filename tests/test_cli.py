@@ -284,3 +284,26 @@ def test_rrd_is_written_atomically_and_only_when_asked(tmp_path, detected):
     assert rrd.stat().st_size > 100_000 and not list(rrd.parent.glob(".*partial"))
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["rerun_s"] > 0
     assert "rerun_s" not in json.loads((detected[0] / "summary.json").read_text())
+
+
+def test_live_serving_with_a_recording_publishes_the_file_when_it_ends(tmp_path, detected):
+    """--rerun-web with --rrd: while serving, no half-written file is in place; after Ctrl-C the
+    recording is complete and readable, and nothing is left running."""
+    import re
+    import signal
+
+    from pipeline.rerun_log import read_blueprint_desc
+    _, cache, _, _ = detected
+    rrd = tmp_path / "live.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "crowdcam", "detect", str(SET), "--out", str(tmp_path / "out"),
+                             "--max-side", "240", "--rerun-web", "--rrd", str(rrd), "--quiet", "--cache-dir",
+                             str(cache)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    line = proc.stdout.readline()
+    port = re.search(r"127\.0\.0\.1:(\d+)/", line)
+    assert port, line + proc.stderr.read()
+    assert not rrd.exists()
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=30) == 0
+    assert read_blueprint_desc(rrd)["focus"]
+    left = subprocess.run(["pgrep", "-f", f"rerun --serve-web.*{port.group(1)}"], capture_output=True, text=True)
+    assert left.stdout.strip() == ""
