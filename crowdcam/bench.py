@@ -95,3 +95,75 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
     if not quiet:
         print(f"wrote {out}", file=sys.stderr)
     return 0 if all("error" not in r for r in rows) else 1
+
+
+# ----------------------------------------------------------------------------- inspector latency
+def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repeats: int = 30,
+               cache_dir: Path | None = None) -> dict:
+    """Server-side time of the inspector's main-view update, as a tab sees it: re-aggregate from
+    the cached per-support maps (model.TermCache, through the pipeline's Eq. 2/3 functions), the
+    refinement, the overlay, and the JPEG encode and send of viser's image handle.
+
+    Measured on the reference with the most supports, all supports on, for each kind of change:
+    threshold (no re-aggregation), a support toggled (sum of cached terms), and remap or weights
+    (the reference's terms recomputed). Returns per-kind median / 95th percentile / max in ms.
+    """
+    import numpy as np
+    import viser
+
+    from inspector import compose, render
+    from inspector.model import Settings, TermCache, first_reference
+    from pipeline.cache import PairCache, default_cache_dir
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import assemble, detect_set
+
+    params = get_preset(preset).replace(max_side=max_side)
+    ps = load_set(Path(set_dir), max_side)
+    res = detect_set(ps, params, PairCache(cache_dir or default_cache_dir()), workers=None)
+    snap = assemble(ps, params, res.pairs, res.supports, res.pair_results)
+    ref = first_reference(res.supports)
+    sups = tuple(res.supports[ref])
+    rgb = ps.photos[ref].rgb
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        handle = server.scene.add_image("/reference", rgb, render_width=rgb.shape[1] / rgb.shape[0],
+                                        render_height=1.0, format="jpeg", jpeg_quality=88)
+        terms = TermCache()
+        base = Settings.for_preset(preset, ref, max_side)
+        base = Settings(**{**base.__dict__, "supports": sups})
+        layers = render.Layers()
+
+        def update(s: Settings) -> float:
+            t0 = time.perf_counter()
+            img, _ = compose.main_view(snap, rgb, s, layers, terms)
+            handle.image = img
+            return 1000 * (time.perf_counter() - t0)
+
+        update(base)                                   # fill the cache as the first view does
+        kinds = {
+            "threshold": lambda k: Settings(**{**base.__dict__, "threshold": 0.3 + 0.4 * (k % 10) / 10}),
+            "support toggle": lambda k: Settings(**{**base.__dict__,
+                                                    "supports": tuple(j for j in sups if j != sups[k % len(sups)])}),
+            "remap": lambda k: Settings(**{**base.__dict__, "remap": (0.2 + 0.01 * k, 0.8 - 0.01 * k)}),
+            "weights": lambda k: Settings(**{**base.__dict__, "w_hog": 1.0 + 0.1 * k}),
+        }
+        out = {"set": ps.name, "preset": preset, "reference": ps.photos[ref].stem, "supports": len(sups),
+               "size": list(rgb.shape[:2])}
+        for name, make in kinds.items():
+            ms = np.array([update(make(k)) for k in range(repeats)])
+            out[name] = {"median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)),
+                         "max_ms": float(ms.max())}
+        return out
+    finally:
+        server.stop()
+
+
+def print_ui_latency(rows: list[dict]) -> None:
+    print(f"{'set':<20} {'ref':<10} {'sup':>3} {'size':>9}  " + "  ".join(
+        f"{k:>22}" for k in ("threshold", "support toggle", "remap", "weights")))
+    for r in rows:
+        cells = "  ".join(f"{r[k]['median_ms']:6.1f} / {r[k]['p95_ms']:5.1f} / {r[k]['max_ms']:5.1f}"
+                          for k in ("threshold", "support toggle", "remap", "weights"))
+        print(f"{r['set']:<20} {r['reference']:<10} {r['supports']:>3} {r['size'][1]}x{r['size'][0]:<5} {cells}")
+    print("(ms: median / 95th percentile / max of the server-side main-view update)")

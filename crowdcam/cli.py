@@ -1,4 +1,4 @@
-"""The `crowdcam` command: detect, eval, bench, make-samples.
+"""The `crowdcam` command: detect, inspect, view, eval, bench, make-samples.
 
 Errors a user can cause (missing or unreadable input, no usable geometry, bad options) are
 reported as one line `crowdcam: error: ...` with exit code 2; warnings go to stderr and the run
@@ -258,6 +258,42 @@ def cmd_view(args) -> int:
     return 0
 
 
+def cmd_inspect(args) -> int:
+    from pipeline.loading import is_inside, load_gt, load_set
+
+    rep = Reporter(args.quiet)
+    params = _params(args)
+    set_dir = Path(args.set) if args.set else SAMPLE_SETS / "square_people"
+    if not 0 <= args.port <= 65535:
+        raise CliError(f"--port must be in 0..65535 (got {args.port})")
+    photo_set = load_set(set_dir, params.max_side, warn=rep.warn)
+    gts = {}
+    if photo_set.gt_dir is not None:
+        for p in photo_set.photos:
+            g = load_gt(photo_set.gt_dir, p.stem, p.orig_size)
+            if g is not None:
+                gts[p.stem] = g
+    out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name / "inspector"
+    if is_inside(out, set_dir):
+        raise CliError(f"{out}: the output folder must not be inside the input folder {set_dir}")
+    from crowdcam.rerun_web import wait_until_interrupted
+    from inspector.app import Inspector
+    try:
+        app = Inspector(photo_set, gts, _cache(args), out, host=args.host, port=args.port, preset=args.preset,
+                        max_side=params.max_side, workers=args.workers)
+    except OSError as e:
+        raise CliError(f"cannot serve on {args.host}:{args.port}: {e.strerror or e}") from None
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        rep.warn(f"serving on {args.host}: anyone who can reach this machine can open the inspector")
+    print(f"crowdcam inspector: {app.url}  ({photo_set.name}, {len(photo_set.photos)} photos; Ctrl-C to stop)",
+          flush=True)
+    try:
+        wait_until_interrupted()
+    finally:
+        app.close()
+    return 0
+
+
 def cmd_eval(args) -> int:
     import numpy as np
     from pipeline.cache import atomic_write_bytes
@@ -304,6 +340,11 @@ def cmd_bench(args) -> int:
         if not s.is_dir():
             raise CliError(f"{s}: no such folder")
     presets = args.preset or ["default"]
+    if args.ui:
+        from crowdcam.bench import print_ui_latency, ui_latency
+        rows = [ui_latency(s, presets[0], args.max_side) for s in sets]
+        print_ui_latency(rows)
+        return 0
     out = Path(args.json) if args.json else Path.cwd() / "crowdcam-out" / "bench.json"
     return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet)
 
@@ -354,6 +395,18 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--port", type=int, default=None, help="web viewer port (default: a free one)")
     v.set_defaults(fn=cmd_view)
 
+    ins = sub.add_parser("inspect", help="explore a set in the browser: maps, supports, thresholds, evidence")
+    ins.add_argument("set", nargs="?", default=None,
+                     help="folder of photos, or folder with images/ and gt/ (default: bundled square_people)")
+    ins.add_argument("--host", default="127.0.0.1",
+                     help="address to serve on (default 127.0.0.1: this machine only; other addresses must be given "
+                          "explicitly)")
+    ins.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    ins.add_argument("--out", default=None,
+                     help="where 'Save to output folder' writes (default ./crowdcam-out/<set name>/inspector)")
+    common(ins)
+    ins.set_defaults(fn=cmd_inspect)
+
     e = sub.add_parser("eval", help="Jaccard of a detect output against ground truth (Table 1 row)")
     e.add_argument("dir", help="output folder of `crowdcam detect`")
     e.add_argument("--gt", default=None, help="ground-truth folder (default: the input set's gt/)")
@@ -366,6 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=int, default=None)
     b.add_argument("--json", default=None, help="where to write the JSON report (default ./crowdcam-out/bench.json)")
     b.add_argument("--quiet", action="store_true")
+    b.add_argument("--ui", action="store_true",
+                   help="measure the inspector's main-view update latency instead (uses the cache)")
     b.set_defaults(fn=cmd_bench)
 
     m = sub.add_parser("make-samples", help="render the bundled synthetic sample sets")

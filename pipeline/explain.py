@@ -73,3 +73,96 @@ def explain_patches(pair: PairResult, ch_ref: ImageChannels, ch_sup: ImageChanne
         out.append(PatchEvidence(int(pid), ref_quad, quads, sh.astype(np.float32), sc.astype(np.float32),
                                  int(np.argmax(sh)), int(np.argmax(sc))))
     return out
+
+
+@dataclass(frozen=True)
+class PixelEvidence:
+    """Why reference pixel `xy` got its P(x|I_sup): what the support was searched along, and the
+    covering patch that weighs most in Eq. 2 (the one whose centre is nearest) with its best
+    candidates.
+
+    kind: "epipolar" or "homography"; xy: (2,) float working-resolution reference pixel;
+    evidence: share of the Eq. 2 weight at xy from patches that had candidates (0 = no evidence);
+    line: (3,) float64 epipolar line l = F x in the support (a x + b y + c = 0), epipolar pairs;
+    point: (2,) float64 H x in the support, homography pairs; window: (4, 2) float32 the
+    homography search window (the patch grown by the parallax search) in the support;
+    patch: the dominant patch's evidence or None when no patch covers xy. For homography pairs
+    its candidates are just the best HOG and best colour ones (sims NaN for the other cue),
+    read from the pair's table.
+    """
+
+    ref: int
+    sup: int
+    kind: str
+    xy: np.ndarray
+    evidence: float
+    n_covering: int
+    patch: PatchEvidence | None
+    line: np.ndarray | None = None
+    point: np.ndarray | None = None
+    window: np.ndarray | None = None
+
+
+def _nearest(quads: list[np.ndarray], xy: np.ndarray) -> int:
+    return int(np.argmin([np.linalg.norm(q.mean(axis=0) - xy) for q in quads]))
+
+
+def explain_pixel(res, i: int, j: int, xy) -> PixelEvidence:
+    """Evidence behind P(x|I_j) at reference pixel xy (working resolution) for the admitted pair
+    (i, j) of a run.SetResult. Uses the pair's own result (and, for epipolar pairs, the matcher's
+    describe functions on the covering patches' strips only)."""
+    pair, g = res.pair_results[(i, j)], res.pairs[(i, j)]
+    xy = np.asarray(xy, np.float64).reshape(2)
+    h, w = pair.evidence.shape
+    u, v = int(np.clip(round(xy[0]), 0, w - 1)), int(np.clip(round(xy[1]), 0, h - 1))
+    ev = float(pair.evidence[v, u])
+    if pair.kind == "homography":
+        return _explain_homography(res.params, pair, xy, ev)
+    line = g.F @ np.array([xy[0], xy[1], 1.0])
+    covering = patches_at(pair, xy[None])[0]
+    if len(covering) == 0:
+        return PixelEvidence(i, j, "epipolar", xy, ev, 0, None, line=line)
+    evs = res.explain(i, j, patch_ids=covering)
+    dom = evs[_nearest([e.ref_quad for e in evs], xy)]
+    return PixelEvidence(i, j, "epipolar", xy, ev, len(evs), dom, line=line)
+
+
+def _explain_homography(params: Params, pair: PairResult, xy: np.ndarray, ev: float) -> PixelEvidence:
+    from .homography import PAD
+    t = pair.patches
+    s = patch_length(params) // 3
+    px = int(t.start.max()) + 1
+    py = int(t.strip.max()) + 1
+    # the patch whose centre ((i - PAD + 1.5) s - 0.5) is nearest the pixel (homography._splat_grid)
+    bi = int(np.clip(round((xy[1] + 0.5) / s - 1.5 + PAD), 0, py - 1))
+    bj = int(np.clip(round((xy[0] + 0.5) / s - 1.5 + PAD), 0, px - 1))
+    pid = bi * px + bj
+
+    def square(di: int, dj: int, grow: int = 0) -> np.ndarray:
+        x0, y0 = (bj + dj - PAD - grow) * s, (bi + di - PAD - grow) * s
+        x1, y1 = x0 + 3 * s + 2 * grow * s, y0 + 3 * s + 2 * grow * s
+        return np.array([[x0, y0], [x0, y1], [x1, y1], [x1, y0]], np.float64) - 0.5
+
+    def to_sup(pts: np.ndarray) -> np.ndarray:
+        q = np.c_[pts, np.ones(len(pts))] @ pair.H.T
+        return (q[:, :2] / q[:, 2:3]).astype(np.float32)
+
+    r = params.patches.homography_search
+    offsets = [(di, dj) for di in range(-r, r + 1) for dj in range(-r, r + 1)]
+    point = to_sup(xy[None])[0].astype(np.float64)
+    window = to_sup(square(0, 0, r))
+    ref_quad = square(0, 0).astype(np.float32)
+    quads, sh, sc = [], [], []
+    for k, sim_h, sim_c in ((t.best_hog_seg[pid], t.conf_hog[pid], np.nan),
+                            (t.best_color_seg[pid], np.nan, t.conf_color[pid])):
+        if k >= 0:
+            quads.append(to_sup(square(*offsets[int(k)])))
+            sh.append(sim_h)
+            sc.append(sim_c)
+    if not quads:
+        patch = PatchEvidence(pid, ref_quad, np.zeros((0, 4, 2), np.float32), np.zeros(0, np.float32),
+                              np.zeros(0, np.float32), -1, -1)
+    else:
+        patch = PatchEvidence(pid, ref_quad, np.stack(quads), np.array(sh, np.float32), np.array(sc, np.float32),
+                              0, len(quads) - 1)
+    return PixelEvidence(pair.ref, pair.sup, "homography", xy, ev, 9, patch, point=point, window=window)

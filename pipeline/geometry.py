@@ -78,3 +78,26 @@ def convex_hull_share(pts: np.ndarray, size: tuple[int, int]) -> float:
         return 0.0
     hull = cv2.convexHull(np.asarray(pts, dtype=np.float32))
     return float(cv2.contourArea(hull)) / float(size[0] * size[1])
+
+
+def clip_line(l: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
+    """Segment of line (a, b, c) inside an (h, w) image, (2, 2), or None."""
+    h, w = size
+    a, b, c = l
+    pts = []
+    for x in (0.0, w - 1.0):
+        if abs(b) > 1e-12:
+            y = -(a * x + c) / b
+            if 0 <= y <= h - 1:
+                pts.append((x, y))
+    for y in (0.0, h - 1.0):
+        if abs(a) > 1e-12:
+            x = -(b * y + c) / a
+            if 0 <= x <= w - 1:
+                pts.append((x, y))
+    if len(pts) < 2:
+        return None
+    pts = np.array(pts)
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    return pts[[i, j]].astype(np.float32)

@@ -38,35 +38,14 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from .geometry import clip_line
+
 BLUEPRINT_ENTITY = "/meta/blueprint"
 
 
 def part(stem: str) -> str:
     """A photo stem as one entity-path part."""
     return re.sub(r"[^A-Za-z0-9_\-]", "_", stem) or "_"
-
-
-def _clip_line(l: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
-    """Segment of line (a, b, c) inside an (h, w) image, (2, 2), or None."""
-    h, w = size
-    a, b, c = l
-    pts = []
-    for x in (0.0, w - 1.0):
-        if abs(b) > 1e-12:
-            y = -(a * x + c) / b
-            if 0 <= y <= h - 1:
-                pts.append((x, y))
-    for y in (0.0, h - 1.0):
-        if abs(a) > 1e-12:
-            x = -(b * y + c) / a
-            if 0 <= x <= w - 1:
-                pts.append((x, y))
-    if len(pts) < 2:
-        return None
-    pts = np.array(pts)
-    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
-    i, j = np.unravel_index(np.argmax(d), d.shape)
-    return pts[[i, j]].astype(np.float32)
 
 
 def _closed(quads: np.ndarray) -> np.ndarray:
@@ -180,7 +159,7 @@ def log_pair(res, rec, stems, i: int, j: int) -> None:
         rays = np.stack([st.epipole + t0[:, None] * d, st.epipole + t1[:, None] * d], axis=1).astype(np.float32)
         if len(rays):
             rec.log(f"{base}/ref/epilines", rr.LineStrips2D(rays, radii=0.6, colors=[255, 220, 0]), static=True)
-        lines = [seg for seg in (_clip_line(l, size_s) for l in sg.bound_a[np.isin(sg.strip, fan0)]) if seg is not None]
+        lines = [seg for seg in (clip_line(l, size_s) for l in sg.bound_a[np.isin(sg.strip, fan0)]) if seg is not None]
         if lines:
             rec.log(f"{base}/sup/epilines", rr.LineStrips2D(lines, radii=0.6, colors=[255, 220, 0]), static=True)
     mp = res.match_prob(i, j)

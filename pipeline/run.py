@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import multiprocessing as mp
 import os
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -29,6 +30,10 @@ from .refine import refine
 from .support import PairGeometry, estimate_pair, support_sets, triplet_check
 
 Progress = Callable[[str, int, int], None]
+
+
+class Cancelled(Exception):
+    """detect_set was stopped through its `cancel` event."""
 MAP_FIELDS = ("hog_map", "color_map", "evidence")
 
 
@@ -58,16 +63,18 @@ class SetResult:
     def dynamic_prob(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
         """P_dynamic of photo i from the given supports (Eq. 3, then the optional refinement)."""
         p = params or self.params
-        return self._refined(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
+        return self.refine_dynamic(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
 
     def sweep(self, i: int, params: Params | None = None) -> list[np.ndarray]:
         """P_dynamic of photo i after its first 1, 2, ... k supports (the paper's Fig. 5); the last
         equals dynamic_prob(i, supports[i])."""
         p = params or self.params
         probs = [self.match_prob(i, j, p) for j in self.supports[i]]
-        return [self._refined(i, d, p) for d in cumulative_dynamic(probs, p.aggregate)]
+        return [self.refine_dynamic(i, d, p) for d in cumulative_dynamic(probs, p.aggregate)]
 
-    def _refined(self, i: int, dyn: np.ndarray, p: Params) -> np.ndarray:
+    def refine_dynamic(self, i: int, dyn: np.ndarray, params: Params | None = None) -> np.ndarray:
+        """The optional final refinement of photo i's P_dynamic (refine.py); identity when off."""
+        p = params or self.params
         r = int(round(p.aggregate.refine_radius_frac * p.max_side))
         return refine(dyn, self.photo_set.photos[i].rgb, r, p.aggregate.refine_eps) if r > 0 else dyn
 
@@ -174,6 +181,25 @@ class _Runner:
             self.pool = None
 
 
+def _check(cancel: threading.Event | None) -> None:
+    if cancel is not None and cancel.is_set():
+        raise Cancelled()
+
+
+def assemble(photo_set: PhotoSet, params: Params, pairs: dict, supports: list[list[int]],
+             results: dict[tuple[int, int], PairResult], keypoints: list | None = None,
+             timings: dict | None = None, warnings: list | None = None) -> SetResult:
+    """A SetResult from pair results (all of them, or those finished so far), with the set-level
+    normaliser of §3.1.2 over exactly these pairs; no P_dynamic computed yet."""
+    n = len(photo_set.photos)
+    norm = Normaliser.from_confidences([r.patches.conf_hog for r in results.values()],
+                                       [r.patches.conf_color for r in results.values()],
+                                       params.descriptors.norm_percentile)
+    kps = [k if k is not None else np.zeros((0, 2), np.float32) for k in (keypoints or [None] * n)]
+    return SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings or {},
+                     warnings or [], keypoints=kps)
+
+
 def default_workers() -> int:
     return max(1, min(os.cpu_count() or 1, 8))
 
@@ -181,8 +207,16 @@ def default_workers() -> int:
 # ----------------------------------------------------------------------------- entry point
 def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache | None = None,
                workers: int | None = None, progress: Progress | None = None,
-               warn: Callable[[str], None] | None = None, only_refs: Iterable[int] | None = None) -> SetResult:
-    """Compute P_dynamic for every photo of the set (or only for `only_refs`)."""
+               warn: Callable[[str], None] | None = None, only_refs: Iterable[int] | None = None,
+               on_geometry: Callable[[dict, list[list[int]]], int | None] | None = None,
+               on_pair: Callable[[tuple[int, int], PairResult], None] | None = None,
+               cancel: threading.Event | None = None) -> SetResult:
+    """Compute P_dynamic for every photo of the set (or only for `only_refs`).
+
+    For viewers that show results as they arrive: `on_geometry(pairs, supports)` is called once
+    the support sets are known (it may return a reference whose pairs are then computed first),
+    `on_pair((i, j), result)` for every pair result (cached ones first). Setting `cancel` stops the run soon after (raises Cancelled).
+    """
     cache = cache or cache_mod.PairCache(None)
     workers = default_workers() if workers is None else workers
     progress = progress or (lambda *_: None)
@@ -224,6 +258,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             done = [0]
 
             def got_features(res):
+                _check(cancel)
                 feats[res[0]] = res[1]
                 keypoints[res[0]] = res[1].xy
                 buf = io.BytesIO()
@@ -235,6 +270,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             gdone = [0]
 
             def got_geometry(res):
+                _check(cancel)
                 ij, data = res
                 cache.put("geometry", gkey[ij], data)
                 pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
@@ -256,10 +292,12 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 _warn(f"{photos[i].path}: no usable pair (no other photo has trustworthy geometry with it); "
                       "no map for this photo")
 
+        first = on_geometry(pairs, supports) if on_geometry else None
+
         # 3-5. Pairs: matching maps, cached.
         t1 = time.perf_counter()
         refs = list(range(n)) if only_refs is None else sorted(set(only_refs))
-        ordered = [(i, j) for i in refs for j in supports[i]]
+        ordered = sorted(((i, j) for i in refs for j in supports[i]), key=lambda ij: ij[0] != first)
         pkey = {(i, j): cache_mod.key("pair", photos[i].key, photos[j].key, params.geometry_key_material(),
                                       params.pair_key_material()) for i, j in ordered}
         results: dict[tuple[int, int], PairResult] = {}
@@ -268,15 +306,20 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             data = cache.get("pair", pkey[ij])
             if data is not None:
                 results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
+                if on_pair:
+                    on_pair(ij, results[ij])
             else:
                 todo.append(ij)
         pdone = [len(ordered) - len(todo)]
         progress("pairs", pdone[0], len(ordered))
 
         def got_pair(res):
+            _check(cancel)
             ij, data = res
             cache.put("pair", pkey[ij], data)
             results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
+            if on_pair:
+                on_pair(ij, results[ij])
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
         runner.map(_task_pair, [(i, j, pairs[(i, j)]) for i, j in todo], got_pair)
@@ -286,11 +329,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
 
     # 6. Set-level normalisation and aggregation.
     t2 = time.perf_counter()
-    norm = Normaliser.from_confidences([r.patches.conf_hog for r in results.values()],
-                                       [r.patches.conf_color for r in results.values()],
-                                       params.descriptors.norm_percentile)
-    result = SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings, warnings,
-                       keypoints=[k if k is not None else np.zeros((0, 2), np.float32) for k in keypoints])
+    result = assemble(photo_set, params, pairs, supports, results, keypoints, timings, warnings)
     for i in refs:
         if supports[i]:
             result.dynamic[i] = result.dynamic_prob(i, supports[i])

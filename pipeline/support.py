@@ -89,10 +89,21 @@ def _fit_f(p_ref: np.ndarray, p_sup: np.ndarray, thr: float, seed: int = 0) -> t
     if len(p_ref) < 8:
         return None, np.zeros(len(p_ref), bool)
     cv2.setRNGSeed(seed)
-    F, mask = cv2.findFundamentalMat(p_ref, p_sup, cv2.USAC_MAGSAC, thr, 0.9999, 20000)
+    try:
+        F, mask = cv2.findFundamentalMat(p_ref, p_sup, cv2.USAC_MAGSAC, thr, 0.9999, 20000)
+    except cv2.error:       # USAC asserts on some degenerate samples instead of returning no model
+        return None, np.zeros(len(p_ref), bool)
     if F is None or F.shape != (3, 3):
         return None, np.zeros(len(p_ref), bool)
     return F / np.linalg.norm(F), mask.ravel().astype(bool)
+
+
+def _fit_h(p_ref: np.ndarray, p_sup: np.ndarray, thr: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    try:
+        H, mask = cv2.findHomography(p_ref, p_sup, cv2.USAC_MAGSAC, thr, None, 10000, 0.9999)
+    except cv2.error:
+        return None, None
+    return (H, mask) if H is not None and mask is not None else (None, None)
 
 
 def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int, int],
@@ -121,7 +132,7 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
         return result(F, REJECTED, f"inliers poorly spread (hull covers {spread:.0%} < {p.min_spread:.0%})",
                       inl, spread, scale=scale)
     # Degeneracy: does one homography explain (almost) all F inliers?
-    H, hmask = cv2.findHomography(p_ref[inl], p_sup[inl], cv2.USAC_MAGSAC, p.ransac_px * 2.0, None, 10000, 0.9999)
+    H, hmask = _fit_h(p_ref[inl], p_sup[inl], p.ransac_px * 2.0)
     hshare = float(hmask.sum()) / n_in if H is not None else 0.0
     if hshare >= p.max_homography_share and p.homography_pairs:
         return _homography_pair(i, j, F, inl, p_ref, p_sup, size_i, size_j, scale, hshare, p, result)
@@ -147,7 +158,7 @@ def _homography_pair(i, j, F, f_inl, p_ref, p_sup, size_i, size_j, scale, hshare
     """Departure (default preset): a pair whose static scene one homography explains (same spot,
     pure rotation, distant or planar scene) is kept as a homography pair instead of dropped.
     Its epipolar strip collapses to the point H gives, which makes it the most informative kind."""
-    H, hmask = cv2.findHomography(p_ref, p_sup, cv2.USAC_MAGSAC, p.ransac_px * 2.0, None, 10000, 0.9999)
+    H, hmask = _fit_h(p_ref, p_sup, p.ransac_px * 2.0)
     if H is None:
         return result(F, REJECTED, "degenerate F and no homography could be fitted", hshare=hshare, scale=scale)
     inl = hmask.ravel().astype(bool)

@@ -83,3 +83,16 @@ def test_triplet_check_rejects_a_pair_fooled_by_repetition():
     assert out[(0, 1)].status == REJECTED and "triplets disagree" in out[(0, 1)].reason
     assert out[(1, 0)].status == REJECTED
     assert all(out[(i, j)].status == OK for i in range(4) for j in range(4) if i != j and {i, j} != {0, 1})
+
+
+def test_degenerate_samples_give_no_model_not_an_error():
+    """OpenCV's USAC asserts on some degenerate samples; the pair is then rejected, never a crash."""
+    from pipeline.support import _fit_f, _fit_h
+    x = np.linspace(0, 100, 30, dtype=np.float32)
+    line = np.column_stack([x, 2 * x + 1]).astype(np.float32)
+    same = np.repeat(np.array([[5.0, 5.0]], np.float32), 30, axis=0)
+    for a, b in ((line, line), (same, same), (line, same)):
+        F, mask = _fit_f(a, b, 1.5)
+        assert F is None or F.shape == (3, 3)
+        H, hmask = _fit_h(a, b, 3.0)
+        assert H is None or H.shape == (3, 3)
