@@ -1,10 +1,10 @@
 # Two commands on a fresh clone:
-#   make demo   set up and run `crowdcam detect` on a bundled sample set
+#   make demo   set up, run `crowdcam detect` on a bundled sample set, then open the web inspector
 #   make test   set up and run the test suite (what .ci/run runs)
 PYTHON ?= python3
 VENV   ?= .venv
 PY      = $(VENV)/bin/python
-SET    ?= sample_sets/square_people
+SET    ?= sample_sets/tabletop_ball
 
 .PHONY: setup browser demo test bench samples clean
 
@@ -18,7 +18,8 @@ setup: $(VENV)/.installed
 
 demo: setup
 	$(VENV)/bin/crowdcam detect $(SET)
-	@echo "maps, masks and overlays are in crowdcam-out/$(notdir $(SET))/"
+	@echo "maps, masks and overlays are in crowdcam-out/$(notdir $(SET))/; now the web inspector (Ctrl-C stops):"
+	$(VENV)/bin/crowdcam inspect $(SET)
 
 # Debian's Chromium for the browser tests (root installs it with apt-get; never `playwright install`)
 browser:

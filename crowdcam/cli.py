@@ -258,14 +258,26 @@ def cmd_view(args) -> int:
     return 0
 
 
+def _check_host(host: str) -> None:
+    """An address this machine can serve on (viser would otherwise wait silently)."""
+    import socket
+    try:
+        info = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)[0]
+        with socket.socket(info[0], socket.SOCK_STREAM) as s:
+            s.bind(info[4][:2])
+    except (OSError, UnicodeError) as e:
+        raise CliError(f"--host {host}: cannot serve on this address ({getattr(e, 'strerror', None) or e})") from None
+
+
 def cmd_inspect(args) -> int:
     from pipeline.loading import is_inside, load_gt, load_set
 
     rep = Reporter(args.quiet)
     params = _params(args)
-    set_dir = Path(args.set) if args.set else SAMPLE_SETS / "square_people"
+    set_dir = Path(args.set) if args.set else SAMPLE_SETS / "tabletop_ball"
     if not 0 <= args.port <= 65535:
         raise CliError(f"--port must be in 0..65535 (got {args.port})")
+    _check_host(args.host)
     photo_set = load_set(set_dir, params.max_side, warn=rep.warn)
     gts = {}
     if photo_set.gt_dir is not None:
@@ -397,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     ins = sub.add_parser("inspect", help="explore a set in the browser: maps, supports, thresholds, evidence")
     ins.add_argument("set", nargs="?", default=None,
-                     help="folder of photos, or folder with images/ and gt/ (default: bundled square_people)")
+                     help="folder of photos, or folder with images/ and gt/ (default: bundled tabletop_ball)")
     ins.add_argument("--host", default="127.0.0.1",
                      help="address to serve on (default 127.0.0.1: this machine only; other addresses must be given "
                           "explicitly)")

@@ -17,7 +17,9 @@ from urllib.parse import quote
 
 
 def _die_with_parent() -> None:
-    """In the child: get SIGTERM when the parent dies, even by SIGKILL (Linux prctl)."""
+    """In the child: get SIGTERM when the parent dies, even by SIGKILL (Linux prctl). Linux ties
+    this to the *thread* that started the child: start viewers from a thread that lives as long
+    as they should."""
     try:
         import ctypes
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)    # PR_SET_PDEATHSIG = 1

@@ -15,6 +15,7 @@ import json
 import threading
 import time
 import traceback
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -107,6 +108,9 @@ class Inspector:
         self._rerun = None
         self._recordings: list = []
         self._rerun_lock = threading.Lock()
+        # Rerun work runs on one long-lived thread: the viewer process is tied to the thread that
+        # started it (PR_SET_PDEATHSIG fires when that *thread* exits), and this also serialises it
+        self.rerun_worker = ThreadPoolExecutor(1, thread_name_prefix="crowdcam-rerun")
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.gui.configure_theme(control_width="large", show_share_button=False, show_logo=False,
                                         titlebar_content=None)
@@ -176,6 +180,7 @@ class Inspector:
             if self._rerun is not None:
                 self._rerun.close()
                 self._rerun = None
+        self.rerun_worker.shutdown(wait=False, cancel_futures=True)
         self.server.stop()
 
 
@@ -304,7 +309,7 @@ class Session:
         self.btn_npy.on_click(lambda _ev: self._download("npy"))
         self.btn_png.on_click(lambda _ev: self._download("png"))
         self.btn_save.on_click(lambda _ev: self._save())
-        self.btn_rerun.on_click(lambda _ev: threading.Thread(target=self._open_rerun, daemon=True).start())
+        self.btn_rerun.on_click(lambda _ev: self.app.rerun_worker.submit(self._open_rerun_safely))
         self.client.camera.on_update(self._on_camera)
 
     def start(self) -> None:
@@ -643,6 +648,12 @@ class Session:
         self.md_export.content = f"Saved to `{out}`: " + ", ".join(f"`{p.name}`" for p in paths)
         self._record("saved", [str(p) for p in paths])
         return paths
+
+    def _open_rerun_safely(self) -> None:
+        try:
+            self._open_rerun()
+        except Exception as e:          # shown in the tab: the viewer failed to start, a full disk, ...
+            self.md_export.content = f"Could not record to Rerun: {type(e).__name__}: {e}"
 
     def _open_rerun(self) -> None:
         """Record the current reference (with the explained pixel, if any) into the loopback Rerun

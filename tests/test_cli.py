@@ -307,3 +307,44 @@ def test_live_serving_with_a_recording_publishes_the_file_when_it_ends(tmp_path,
     assert read_blueprint_desc(rrd)["focus"]
     left = subprocess.run(["pgrep", "-f", f"rerun --serve-web.*{port.group(1)}"], capture_output=True, text=True)
     assert left.stdout.strip() == ""
+
+
+def test_inspect_serves_until_interrupted(tmp_path, detected):
+    """`crowdcam inspect SET` as a user runs it: prints its loopback URL, serves the page, stops on
+    Ctrl-C with exit 0, and writes nothing until asked."""
+    import re
+    import signal
+    import urllib.request
+    _, cache, _, _ = detected
+    proc = subprocess.Popen([sys.executable, "-m", "crowdcam", "inspect", str(SET), "--port", "0", "--max-side", "240",
+                             "--out", str(tmp_path / "out"), "--cache-dir", str(cache)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        url = None
+        for _ in range(20):
+            line = proc.stdout.readline()
+            m = re.search(r"crowdcam inspector: (http://127\.0\.0\.1:\d+/)", line)
+            if m:
+                url = m.group(1)
+                break
+        assert url, proc.stderr.read()
+        assert b"<html" in urllib.request.urlopen(url, timeout=10).read(2000).lower()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+        assert "Traceback" not in proc.stderr.read()
+        assert not (tmp_path / "out").exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+@pytest.mark.parametrize("args,expect", [
+    (["/no/such/set"], "no such"),
+    ([str(SET), "--port", "70000"], "--port"),
+    ([str(SET), "--host", "999.1.1.1"], "--host"),
+    ([str(SET), "--out", str(SET / "inspector")], "must not be inside"),
+])
+def test_inspect_bad_input_gives_one_line_error(args, expect):
+    r = run_cli("inspect", *args)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and expect in r.stderr and "Traceback" not in r.stderr
