@@ -21,7 +21,7 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q)
     try:
         from pipeline.cache import PairCache
         from pipeline.evaluate import score_set, static_false_positive_rate
-        from pipeline.loading import load_gt, load_set
+        from pipeline.loading import load_gts, load_set
         from pipeline.output import to_original
         from pipeline.params import get_preset
         from pipeline.run import detect_set
@@ -41,15 +41,8 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q)
                "rejected_pairs": sum(not g.ok for (i, j), g in res.pairs.items() if i < j),
                "cold_s": cold, "s_per_pair": cold / max(1, len(res.pair_results)), "warm_s": warm,
                "timings": res.timings}
-        probs, gts = {}, {}
-        for p, d in zip(ps.photos, res.dynamic):
-            if d is None:
-                continue
-            probs[p.stem] = to_original(d, p)
-            if ps.gt_dir is not None:
-                g = load_gt(ps.gt_dir, p.stem, p.orig_size)
-                if g is not None:
-                    gts[p.stem] = g
+        probs = {p.stem: to_original(d, p) for p, d in zip(ps.photos, res.dynamic) if d is not None}
+        gts = {k: g for k, g in load_gts(ps).items() if k in probs}
         if gts:
             sc = score_set({k: v for k, v in probs.items() if k in gts}, gts)
             row.update(jaccard_opt_image=sc.mean_opt_image, jaccard_opt_image_std=sc.std_opt_image,
@@ -108,6 +101,8 @@ def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repe
     threshold (no re-aggregation), a support toggled (sum of cached terms), and remap or weights
     (the reference's terms recomputed). Returns per-kind median / 95th percentile / max in ms.
     """
+    from dataclasses import replace
+
     import numpy as np
     import viser
 
@@ -116,22 +111,20 @@ def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repe
     from pipeline.cache import PairCache, default_cache_dir
     from pipeline.loading import load_set
     from pipeline.params import get_preset
-    from pipeline.run import assemble, detect_set
+    from pipeline.run import detect_set
 
     params = get_preset(preset).replace(max_side=max_side)
     ps = load_set(Path(set_dir), max_side)
-    res = detect_set(ps, params, PairCache(cache_dir or default_cache_dir()), workers=None)
-    snap = assemble(ps, params, res.pairs, res.supports, res.pair_results)
-    ref = first_reference(res.supports)
-    sups = tuple(res.supports[ref])
+    snap = detect_set(ps, params, PairCache(cache_dir or default_cache_dir()), workers=None)
+    ref = first_reference(snap.supports)
+    sups = tuple(snap.supports[ref])
     rgb = ps.photos[ref].rgb
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         handle = server.scene.add_image("/reference", rgb, render_width=rgb.shape[1] / rgb.shape[0],
                                         render_height=1.0, format="jpeg", jpeg_quality=88)
         terms = TermCache()
-        base = Settings.for_preset(preset, ref, max_side)
-        base = Settings(**{**base.__dict__, "supports": sups})
+        base = replace(Settings.for_preset(preset, ref, max_side), supports=sups)
         layers = render.Layers()
 
         def update(s: Settings) -> float:
@@ -142,11 +135,10 @@ def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repe
 
         update(base)                                   # fill the cache as the first view does
         kinds = {
-            "threshold": lambda k: Settings(**{**base.__dict__, "threshold": 0.3 + 0.4 * (k % 10) / 10}),
-            "support toggle": lambda k: Settings(**{**base.__dict__,
-                                                    "supports": tuple(j for j in sups if j != sups[k % len(sups)])}),
-            "remap": lambda k: Settings(**{**base.__dict__, "remap": (0.2 + 0.01 * k, 0.8 - 0.01 * k)}),
-            "weights": lambda k: Settings(**{**base.__dict__, "w_hog": 1.0 + 0.1 * k}),
+            "threshold": lambda k: replace(base, threshold=0.3 + 0.4 * (k % 10) / 10),
+            "support toggle": lambda k: replace(base, supports=tuple(j for j in sups if j != sups[k % len(sups)])),
+            "remap": lambda k: replace(base, remap=(0.2 + 0.01 * k, 0.8 - 0.01 * k)),
+            "weights": lambda k: replace(base, w_hog=1.0 + 0.1 * k),
         }
         out = {"set": ps.name, "preset": preset, "reference": ps.photos[ref].stem, "supports": len(sups),
                "size": list(rgb.shape[:2])}

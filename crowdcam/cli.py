@@ -89,7 +89,7 @@ def _table_row(name: str, score) -> str:
 
 # ----------------------------------------------------------------------------- commands
 def cmd_detect(args) -> int:
-    from pipeline.loading import is_inside, load_set, load_gt
+    from pipeline.loading import is_inside, load_gts, load_set
     from pipeline.output import write_outputs, to_original
     from pipeline.run import detect_set
     from pipeline.evaluate import score_set
@@ -111,12 +111,7 @@ def cmd_detect(args) -> int:
     rep.close()
     res.timings["total_s"] = time.perf_counter() - t0
     extra = {}
-    gts = {}
-    if photo_set.gt_dir is not None:
-        for p in photo_set.photos:
-            g = load_gt(photo_set.gt_dir, p.stem, p.orig_size)
-            if g is not None:
-                gts[p.stem] = g
+    gts = load_gts(photo_set)
     probs = {p.stem: to_original(d, p) for p, d in zip(photo_set.photos, res.dynamic)
              if d is not None and p.stem in gts}
     if probs:
@@ -270,7 +265,7 @@ def _check_host(host: str) -> None:
 
 
 def cmd_inspect(args) -> int:
-    from pipeline.loading import is_inside, load_gt, load_set
+    from pipeline.loading import is_inside, load_gts, load_set
 
     rep = Reporter(args.quiet)
     params = _params(args)
@@ -279,12 +274,7 @@ def cmd_inspect(args) -> int:
         raise CliError(f"--port must be in 0..65535 (got {args.port})")
     _check_host(args.host)
     photo_set = load_set(set_dir, params.max_side, warn=rep.warn)
-    gts = {}
-    if photo_set.gt_dir is not None:
-        for p in photo_set.photos:
-            g = load_gt(photo_set.gt_dir, p.stem, p.orig_size)
-            if g is not None:
-                gts[p.stem] = g
+    gts = load_gts(photo_set)
     out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name / "inspector"
     if is_inside(out, set_dir):
         raise CliError(f"{out}: the output folder must not be inside the input folder {set_dir}")

@@ -198,7 +198,6 @@ class Session:
         self.ref_chosen = False                             # the user picked a reference
         self.pixel: np.ndarray | None = None
         self.dyn: np.ndarray | None = None                  # the map on screen
-        self.dyn_key = None
         self.report: compose.PixelReport | None = None
         self.score: Score | None = None
         self.ready_count = -1
@@ -257,7 +256,8 @@ class Session:
             self.plot_eval = gui.add_uplot(
                 data=(THRESHOLDS, np.zeros_like(THRESHOLDS), np.full_like(THRESHOLDS, np.nan)),
                 series=(vu.Series(label="threshold"), vu.Series(label="Jaccard", stroke="#1f6feb", width=2),
-                        vu.Series(label="current", stroke="#e5534b", width=2)),
+                        vu.Series(label="current", stroke="#e5534b", width=2,
+                                  points={"show": True, "size": 9, "fill": "#e5534b"})),
                 scales={"x": vu.Scale(time=False, range=(0.0, 1.0)), "y": vu.Scale(range=(0.0, 1.0))},
                 title="Jaccard vs threshold", aspect=1.8)
         with gui.add_folder("Export and Rerun"):
@@ -472,7 +472,7 @@ class Session:
                                          self.app.gts_working.get(stem), pixel)
             self.scene_img.image = img
             self.main_ms = (self.main_ms + [1000 * (time.perf_counter() - t0)])[-50:]
-            self.dyn, self.dyn_key = dyn, (s, None if snap is None else id(snap))
+            self.dyn = dyn
             self._draw_eval(ref, dyn, s.threshold)
         if "supports" in what and snap is not None:
             self.img_sup.image = compose.support_mosaic(snap, self.settings, self.app.terms, self.app.stems)
@@ -553,9 +553,9 @@ class Session:
         self.score = sc
         self.md_eval.content = (f"Jaccard at {threshold:.2f}: **{sc.at_threshold:.3f}**  \n"
                                 f"Best for this image: **{sc.best:.3f}** at threshold {sc.best_threshold:.3f}")
-        marker = np.full_like(THRESHOLDS, np.nan)
+        marker = np.full_like(THRESHOLDS, np.nan)       # one point: the current threshold
         marker[int(np.argmin(np.abs(THRESHOLDS - threshold)))] = sc.at_threshold
-        self.plot_eval.data = (THRESHOLDS, sc.curve, np.where(np.abs(THRESHOLDS - threshold) < 1e-9, 1.0, marker))
+        self.plot_eval.data = (THRESHOLDS, sc.curve, marker)
 
     def _draw_slow(self, what: set[str]) -> None:
         model = self.app.model(self.settings.preset)
@@ -676,8 +676,7 @@ class Session:
         stem = self.app.stems[s.ref]
         rec = rr.RecordingStream("crowdcam", recording_id=f"{self.app.photo_set.name}-{stem}-{int(time.time())}")
         rec.connect_grpc(web.grpc_uri)
-        gts = {k: v for k, v in self.app.gts.items()}
-        desc = log_run(res, rec, focus=s.ref, pixels=None if self.pixel is None else self.pixel[None], gts=gts,
+        desc = log_run(res, rec, focus=s.ref, pixels=None if self.pixel is None else self.pixel[None], gts=self.app.gts,
                        threshold=s.threshold)
         rec.send_blueprint(make_blueprint(desc))
         rec.flush()

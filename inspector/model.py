@@ -234,7 +234,8 @@ def dynamic_prob(snap: SetResult, settings: Settings, terms: TermCache) -> np.nd
         for j in sups[1:]:
             logit += terms.term(snap, settings.ref, j, p)
         return snap.refine_dynamic(settings.ref, dynamic_from_log_odds(logit), p)
-    key = ("d", id(snap), dataclasses.replace(settings, threshold=0.0, supports=tuple(sups)))
+    # keyed like the terms (by the normaliser, not the snapshot object, whose id can be reused)
+    key = ("d", id(snap.photo_set), snap.normaliser, dataclasses.replace(settings, threshold=0.0, supports=tuple(sups)))
     return terms.get(key, make)
 
 

@@ -104,7 +104,8 @@ class PixelEvidence:
 
 
 def _nearest(quads: list[np.ndarray], xy: np.ndarray) -> int:
-    return int(np.argmin([np.linalg.norm(q.mean(axis=0) - xy) for q in quads]))
+    centres = np.stack(quads).mean(axis=1)                    # (P, 2)
+    return int(np.argmin(np.linalg.norm(centres - xy, axis=1)))
 
 
 def explain_pixel(res, i: int, j: int, xy) -> PixelEvidence:

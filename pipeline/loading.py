@@ -190,6 +190,14 @@ def load_gt(gt_dir: Path, stem: str, size: tuple[int, int]) -> np.ndarray | None
     return out
 
 
+def load_gts(photo_set: PhotoSet) -> dict[str, np.ndarray]:
+    """Ground truth of every photo of the set that has one: stem -> (H, W) uint8 (see load_gt)."""
+    if photo_set.gt_dir is None:
+        return {}
+    gts = {p.stem: load_gt(photo_set.gt_dir, p.stem, p.orig_size) for p in photo_set.photos}
+    return {k: g for k, g in gts.items() if g is not None}
+
+
 def is_inside(child: Path, parent: Path) -> bool:
     try:
         Path(os.path.realpath(child)).relative_to(os.path.realpath(parent))

@@ -49,12 +49,11 @@ def shots(tmp_path_factory):
 def app(tmp_path_factory):
     from inspector.app import Inspector
     from pipeline.cache import PairCache
-    from pipeline.loading import load_gt, load_set
+    from pipeline.loading import load_gts, load_set
     tmp = tmp_path_factory.mktemp("inspector")
     ps = load_set(SAMPLE_SETS / "tabletop_ball", 256)
-    gts = {p.stem: load_gt(ps.gt_dir, p.stem, p.orig_size) for p in ps.photos}
     # one worker and an empty cache: the run is still going when the page opens
-    a = Inspector(ps, {k: v for k, v in gts.items() if v is not None}, PairCache(tmp / "cache"), tmp / "out",
+    a = Inspector(ps, load_gts(ps), PairCache(tmp / "cache"), tmp / "out",
                   port=0, max_side=256, workers=1)
     yield a
     a.close()
@@ -79,6 +78,13 @@ def open_tab(browser, app, hosts):
     page.wait_for_selector("text=Threshold", timeout=60_000)
     wait_for(lambda: set(app.sessions) - before, what="the tab's session")
     return page, app.sessions[(set(app.sessions) - before).pop()]
+
+
+def set_number(page, slider, value: str) -> None:
+    """Type into a slider's number box (arrow keys on the thumb would also orbit the 3-D view)."""
+    box = page.locator(f'[id="{slider._impl.uuid}"]').locator("xpath=../..").locator("input.mantine-NumberInput-input")
+    box.fill(value)
+    box.press("Enter")
 
 
 def canvas_shot(page, path):
@@ -123,10 +129,7 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     assert c != b
 
     # 4. the threshold, through its number box
-    thr = page.locator(f'[id="{tab.sl_thr._impl.uuid}"]').locator("xpath=../..").locator(
-        "input.mantine-NumberInput-input")
-    thr.fill("0.3")
-    thr.press("Enter")
+    set_number(page, tab.sl_thr, "0.3")
     wait_for(lambda: abs(tab.settings.threshold - 0.3) < 1e-9, what="the threshold")
     settled(tab)
     d = canvas_shot(page, shots / "4_threshold.png")
@@ -168,10 +171,7 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page2.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=60_000)
     assert tab2.settings.ref == model.first_ref != ref
     assert tab2.settings.threshold == 0.5
-    thr2 = page2.locator(f'[id="{tab2.sl_thr._impl.uuid}"]').locator("xpath=../..").locator(
-        "input.mantine-NumberInput-input")
-    thr2.fill("0.7")
-    thr2.press("Enter")
+    set_number(page2, tab2.sl_thr, "0.7")
     wait_for(lambda: abs(tab2.settings.threshold - 0.7) < 1e-9, what="the second tab's threshold")
     settled(tab2)
     page2.screenshot(path=str(shots / "7_second_tab.png"))

@@ -25,6 +25,16 @@ def run(tmp_path_factory):
     return model, events
 
 
+def all_supports(run):
+    """(snapshot, first reference, a fresh TermCache, default settings with all its supports on)."""
+    from inspector.model import Settings, TermCache
+    model, _ = run
+    snap = model.snapshot()
+    i = model.first_ref
+    return snap, i, TermCache(), dataclasses.replace(Settings.for_preset("default", i, 256),
+                                                     supports=tuple(snap.supports[i]))
+
+
 def test_background_run_reports_pairs_as_they_finish(run):
     model, events = run
     counts = [n for _, n in events]
@@ -80,12 +90,8 @@ def test_reaggregation_equals_the_pipeline(run):
 
 def test_sweep_ends_with_the_main_map(run):
     from inspector import compose
-    from inspector.model import Settings, TermCache, dynamic_prob
-    model, _ = run
-    snap = model.snapshot()
-    i = model.first_ref
-    terms = TermCache()
-    s = dataclasses.replace(Settings.for_preset("default", i, 256), supports=tuple(snap.supports[i]))
+    from inspector.model import dynamic_prob
+    snap, i, terms, s = all_supports(run)
     view = compose.sweep(snap, s, terms)
     assert view.supports == tuple(snap.supports[i])
     np.testing.assert_allclose(view.maps[-1], dynamic_prob(snap, s, terms), atol=1e-5)
@@ -97,12 +103,8 @@ def test_sweep_ends_with_the_main_map(run):
 def test_pixel_evidence_agrees_with_the_pair_table(run):
     """Eq. 1: a patch's confidence is its best candidate's similarity; the search line is F x."""
     from inspector import compose
-    from inspector.model import Settings, TermCache, dynamic_prob
-    model, _ = run
-    snap = model.snapshot()
-    i = model.first_ref
-    terms = TermCache()
-    s = dataclasses.replace(Settings.for_preset("default", i, 256), supports=tuple(snap.supports[i]))
+    from inspector.model import dynamic_prob
+    snap, i, terms, s = all_supports(run)
     dyn = dynamic_prob(snap, s, terms)
     h, w = dyn.shape
     xy = np.array([w * 0.5, h * 0.6])
