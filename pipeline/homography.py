@@ -19,7 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from .descriptors import image_channels
+from .descriptors import image_channels, smooth_hist
 from .params import Params
 from .photometric import normalise_aligned
 
@@ -47,7 +47,7 @@ def _block_features(gx, gy, color_bin, valid, s, nby, nbx, bins, hist_bins):
     return hog.astype(np.float32), col.astype(np.float32), cnt
 
 
-def _patches(hog, col, cnt, s, hog_floor):
+def _patches(hog, col, cnt, s, hog_floor, hist_smooth=False):
     """3 x 3 block patches starting at every block: HOG (Py, Px, 81) unit norm, colour (Py, Px, B)
     normalised, valid share (Py, Px)."""
     nby, nbx = cnt.shape
@@ -58,12 +58,14 @@ def _patches(hog, col, cnt, s, hog_floor):
     h /= np.linalg.norm(h, axis=-1, keepdims=True) + 1e-6
     c = sum(col[i:i + py, j:j + px] for i in range(3) for j in range(3))
     c = c / np.maximum(c.sum(axis=-1, keepdims=True), 1e-6)
+    if hist_smooth:
+        c = smooth_hist(c)
     v = sum(cnt[i:i + py, j:j + px] for i in range(3) for j in range(3)) / (9 * s * s)
     return h.astype(np.float32), c.astype(np.float32), v
 
 
 def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, H: np.ndarray,
-                          params: Params):
+                          params: Params, inliers_ref: np.ndarray | None = None):
     """Eq. 1 / Eq. 2 for a homography pair. Returns a matching.PairResult (kind "homography")."""
     from .matching import PairResult, PatchTable, patch_length, patch_sigma
 
@@ -82,12 +84,15 @@ def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.n
     nby, nbx = -(-h // s) + 2 * PAD, -(-w // s) + 2 * PAD
     feats = []
     for img, valid in ((rgb_ref, np.ones((h, w), np.float32)), (warped, inside.astype(np.float32))):
-        ch = image_channels(img, dp.hist_bins)
+        ch = image_channels(img, dp.hist_bins, dp.hist_achromatic)
         blk = _block_features(ch.gx, ch.gy, ch.color_bin, valid, s, nby, nbx, dp.hog_bins, dp.hist_bins)
-        feats.append(_patches(*blk, s, dp.hog_floor))
+        feats.append(_patches(*blk, s, dp.hog_floor, dp.hist_smooth))
     (hr, cr, vr), (hs, cs, vs) = feats
     py, px = vr.shape
     in_view = vr >= pp.min_valid_ref
+    reached = np.ones((py, px), bool)
+    if pp.homography_reach_frac > 0 and inliers_ref is not None:
+        reached = _within_reach(inliers_ref, s, (py, px), (h, w), pp.homography_reach_frac * max(h, w))
     r = pp.homography_search
     offsets = [(di, dj) for di in range(-r, r + 1) for dj in range(-r, r + 1)]
     best_h = np.full((py, px), -np.inf, np.float32)
@@ -109,7 +114,7 @@ def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.n
         arg_h[ys, xs] = np.where(better_h, k, arg_h[ys, xs])
         best_c[ys, xs] = np.where(better_c, sc, best_c[ys, xs])
         arg_c[ys, xs] = np.where(better_c, k, arg_c[ys, xs])
-    has = np.isfinite(best_h) & in_view
+    has = np.isfinite(best_h) & in_view & reached
     conf_h = np.where(has, best_h, np.nan).astype(np.float32)
     conf_c = np.where(has, best_c, np.nan).astype(np.float32)
     rows, cols = np.mgrid[0:py, 0:px]
@@ -124,6 +129,21 @@ def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.n
     hog_map, color_map, evidence = _splat_grid(conf_h, conf_c, in_view, has, s, (h, w), sigma)
     return PairResult(ref, sup, hog_map, color_map, evidence, table, None, None, sigma,
                       time.perf_counter() - t0, kind="homography", H=H)
+
+
+def _within_reach(points: np.ndarray, s: int, grid: tuple[int, int], size: tuple[int, int], reach: float
+                  ) -> np.ndarray:
+    """(py, px) bool: the patch centre lies within `reach` px of one of `points` ((K, 2) float x, y)."""
+    h, w = size
+    free = np.full((h, w), 255, np.uint8)
+    xy = np.round(points).astype(np.int64)
+    ok = (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
+    free[xy[ok, 1], xy[ok, 0]] = 0
+    dist = cv2.distanceTransform(free, cv2.DIST_L2, 5)
+    py, px = grid
+    cy = np.clip(((np.arange(py) - PAD + 1.5) * s - 0.5).round().astype(np.int64), 0, h - 1)
+    cx = np.clip(((np.arange(px) - PAD + 1.5) * s - 0.5).round().astype(np.int64), 0, w - 1)
+    return dist[np.ix_(cy, cx)] <= reach
 
 
 def _splat_grid(conf_h, conf_c, in_view, has, s, size, sigma):

@@ -113,7 +113,7 @@ def describe_reference(ch_ref: ImageChannels, st: RefStrips, params: Params):
     p_j = np.arange(len(p_strip)) - np.repeat(np.concatenate([[0], np.cumsum(st.n_win)[:-1]]), st.n_win)
     p_start = p_j * st.stride
     wr = window_descriptors(sf_r, st.offset[p_strip] + p_start, np.full(len(p_strip), st.L), cells_along,
-                            dp.hog_floor)
+                            dp.hog_floor, dp.hist_smooth)
     return p_strip, p_start, wr
 
 
@@ -133,7 +133,7 @@ def describe_candidates(ch_sup: ImageChannels, sg: SupportSegments, L: int, pair
         q = np.arange(len(seg)) - np.repeat(np.concatenate([[0], np.cumsum(n_q)[:-1]]), n_q)
         c_seg.append(seg), c_start.append(q * step), c_len.append(np.full(len(seg), width))
     c_seg, c_start, c_len = (np.concatenate(a).astype(np.int64) for a in (c_seg, c_start, c_len))
-    wc = window_descriptors(sf_s, sg.offset[c_seg] + c_start, c_len, cells_along, dp.hog_floor)
+    wc = window_descriptors(sf_s, sg.offset[c_seg] + c_start, c_len, cells_along, dp.hog_floor, dp.hist_smooth)
     keep = wc.valid >= pp.min_valid_candidate
     c_strip = sg.strip[c_seg[keep]]
     order = np.argsort(c_strip, kind="stable")

@@ -45,6 +45,8 @@ class PatchParams:
     scale_from_features: bool = False  # centre candidate widths on the pair's SIFT scale ratio
     min_valid_ref: float = 1 / 3       # a reference patch needs this share of its samples in view
     min_valid_candidate: float = 2 / 3  # a candidate needs this share of its samples in view
+    homography_reach_frac: float = 0.0  # homography pairs: 0 = H trusted everywhere; else only this far
+                                       # (x working max side) from an H inlier, beyond it no evidence
     homography_search: int = 1         # homography pairs: search +-this many blocks (patch / 3) for parallax
 
 
@@ -60,6 +62,8 @@ class DescriptorParams:
     w_color: float = 1.0               # paper: weight of the colour histogram (intersection over union)
     norm_percentile: float = 0.0       # paper: 0 = min/max range of C over all pairs of the set
     color_normalise: bool = False      # paper: raw colours; default: map support colours to the reference's
+    hist_achromatic: bool = False      # paper: every pixel by its hue; default: grey/dark pixels in one bin
+    hist_smooth: bool = False          # paper: hard bins; default: each hue bin shares with its neighbours
 
 
 @dataclass(frozen=True)
@@ -93,7 +97,8 @@ class Params:
         """The parameters a per-pair matching result depends on, as canonical JSON."""
         d = {"max_side": self.max_side, "patches": dataclasses.asdict(self.patches),
              "descriptors": {k: v for k, v in dataclasses.asdict(self.descriptors).items()
-                             if k in ("hog_cells", "hog_bins", "hist_bins", "hog_floor", "color_normalise")}}
+                             if k in ("hog_cells", "hog_bins", "hist_bins", "hog_floor", "color_normalise",
+                                      "hist_achromatic", "hist_smooth")}}
         return json.dumps(d, sort_keys=True)
 
     def geometry_key_material(self) -> str:
@@ -107,11 +112,12 @@ def digest(text: str) -> str:
 
 PRESETS: dict[str, Params] = {
     "paper": Params(preset="paper"),
-    # Ours (issue 5, in progress): departures are listed in the README with their measured effect.
+    # Ours (issue 5): departures are listed in the README with their measured effect.
     "default": Params(
         preset="default",
         geometry=GeometryParams(homography_pairs=True, triplet_check=True),
-        descriptors=DescriptorParams(color_normalise=True),
+        patches=PatchParams(homography_reach_frac=0.25),
+        descriptors=DescriptorParams(color_normalise=True, hist_achromatic=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02),
     ),
 }

@@ -86,7 +86,8 @@ class SetResult:
         if patch_ids is None:
             patch_ids = np.unique(np.concatenate(patches_at(r, pixels)))
         rgbs = [p.rgb for p in self.photo_set.photos]
-        ch_ref = image_channels(rgbs[i], self.params.descriptors.hist_bins)
+        dp = self.params.descriptors
+        ch_ref = image_channels(rgbs[i], dp.hist_bins, dp.hist_achromatic)
         return explain_patches(r, ch_ref, support_channels(rgbs[i], rgbs[j], g, self.params), g.F, g.scale,
                                self.params, patch_ids)
 
@@ -103,7 +104,7 @@ def support_channels(rgb_ref: np.ndarray, rgb_sup: np.ndarray, g: PairGeometry, 
     rgb = rgb_sup
     if params.descriptors.color_normalise:
         rgb = normalise_to_reference(rgb_ref, rgb_sup, g.inliers_ref, g.inliers_sup)
-    return image_channels(rgb, params.descriptors.hist_bins)
+    return image_channels(rgb, params.descriptors.hist_bins, params.descriptors.hist_achromatic)
 
 
 # ----------------------------------------------------------------------------- workers
@@ -119,7 +120,8 @@ def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
 def _channels(i: int):
     ch = _W["channels"]
     if i not in ch:
-        ch[i] = image_channels(_W["rgbs"][i], _W["params"].descriptors.hist_bins)
+        ch[i] = image_channels(_W["rgbs"][i], _W["params"].descriptors.hist_bins,
+                               _W["params"].descriptors.hist_achromatic)
     return ch[i]
 
 
@@ -137,7 +139,7 @@ def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[in
 def _task_pair(i: int, j: int, g: PairGeometry) -> tuple[tuple[int, int], bytes]:
     p = _W["params"]
     if g.is_homography:
-        r = match_pair_homography(i, j, _W["rgbs"][i], _W["rgbs"][j], g.H, p)
+        r = match_pair_homography(i, j, _W["rgbs"][i], _W["rgbs"][j], g.H, p, g.inliers_ref)
     else:
         ch_sup = support_channels(_W["rgbs"][i], _W["rgbs"][j], g, p) if p.descriptors.color_normalise else _channels(j)
         r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, p)

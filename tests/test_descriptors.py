@@ -82,3 +82,30 @@ def test_hog_follows_the_strip_frame():
     a = window_descriptors(sf_v, np.array([50]), np.array([24]), 3).hog
     b = window_descriptors(sf_h, np.array([50]), np.array([24]), 3).hog
     assert hog_similarity(a, b)[0, 0] > 0.95
+
+
+def test_smoothed_hue_histogram_keeps_mass_and_wraps_around():
+    from pipeline.descriptors import smooth_hist
+    h = np.zeros((2, 100), np.float32)
+    h[0, 9 * 10 + 3] = 1.0          # last hue bin: its neighbours are hue 8 and (wrapping) hue 0
+    h[1, 4 * 10 + 0] = 1.0
+    s = smooth_hist(h)
+    assert np.allclose(s.sum(axis=1), 1.0)
+    assert np.isclose(s[0, 0 * 10 + 3], 0.25) and np.isclose(s[0, 8 * 10 + 3], 0.25)
+    assert np.isclose(s[1, 4 * 10 + 0], 0.5)             # saturation stays hard
+    # a one-bin hue shift empties the hard intersection but not the smoothed one
+    a, b = np.zeros((1, 100), np.float32), np.zeros((1, 100), np.float32)
+    a[0, 9 * 10 + 3], b[0, 0 * 10 + 3] = 1.0, 1.0
+    assert color_similarity(a, b)[0, 0] == 0.0
+    assert color_similarity(smooth_hist(a), smooth_hist(b))[0, 0] > 0.3
+
+
+def test_achromatic_pixels_share_one_bin_whatever_their_hue():
+    grey_pink = np.array([[[200, 196, 197]]], np.uint8)      # hue near 180 (wraps), low saturation
+    grey_green = np.array([[[196, 200, 197]]], np.uint8)
+    dark_red = np.array([[[20, 2, 2]]], np.uint8)
+    red = np.array([[[220, 30, 30]]], np.uint8)
+    bins = lambda img, on: int(image_channels(img, 10, achromatic=on).color_bin[0, 0])
+    assert bins(grey_pink, False) != bins(grey_green, False)
+    assert bins(grey_pink, True) == bins(grey_green, True) == bins(dark_red, True) == 0
+    assert bins(red, True) == bins(red, False) != 0

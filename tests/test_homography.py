@@ -67,3 +67,18 @@ def test_out_of_view_has_no_evidence():
     r = match_pair_homography(0, 1, a, b, shift, params)
     # reference pixels x with x + 120 beyond the support's width are out of view
     assert r.evidence[:, 300:].mean() < 0.05 and r.evidence[:, :150].mean() > 0.95
+
+
+def test_homography_is_trusted_only_within_reach_of_its_inliers():
+    """Where no inlier confirms H (a plane seen from apart: the rest of the scene has parallax),
+    the pair gives no evidence instead of reading the misalignment as motion."""
+    params = get_preset("default").replace(max_side=320)
+    a = _scene(3)
+    b = _rotated_view(a, H_TRUE)
+    top_only = np.stack(np.meshgrid(np.arange(10, 310, 15.0), np.arange(5, 60, 15.0)), -1).reshape(-1, 2)
+    r = match_pair_homography(0, 1, a, b, H_TRUE, params, top_only)
+    reach = params.patches.homography_reach_frac * 320
+    everywhere = match_pair_homography(0, 1, a, b, H_TRUE, params)
+    far = slice(int(60 + reach) + 20, None)
+    assert np.allclose(r.evidence[:60], everywhere.evidence[:60], atol=1e-6)
+    assert r.evidence[far].max() == 0.0 and everywhere.evidence[far].mean() > 0.9
