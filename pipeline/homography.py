@@ -133,12 +133,17 @@ def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.n
 
 def _within_reach(points: np.ndarray, s: int, grid: tuple[int, int], size: tuple[int, int], reach: float
                   ) -> np.ndarray:
-    """(py, px) bool: the patch centre lies within `reach` px of one of `points` ((K, 2) float x, y)."""
+    """(py, px) bool: the patch centre lies inside the convex hull of `points` ((K, 2) float x, y),
+    or within `reach` px of it. Inside the hull H interpolates what its inliers confirm (the river
+    between two matched shores); beyond it H extrapolates, which a plane seen from apart does not
+    survive (the ground below a matched facade)."""
     h, w = size
     free = np.full((h, w), 255, np.uint8)
-    xy = np.round(points).astype(np.int64)
+    xy = np.round(points).astype(np.int32)
     ok = (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
     free[xy[ok, 1], xy[ok, 0]] = 0
+    if ok.sum() >= 3:
+        cv2.fillConvexPoly(free, cv2.convexHull(xy[ok]), 0)
     dist = cv2.distanceTransform(free, cv2.DIST_L2, 5)
     py, px = grid
     cy = np.clip(((np.arange(py) - PAD + 1.5) * s - 0.5).round().astype(np.int64), 0, h - 1)

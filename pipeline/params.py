@@ -62,7 +62,8 @@ class DescriptorParams:
     w_color: float = 1.0               # paper: weight of the colour histogram (intersection over union)
     norm_percentile: float = 0.0       # paper: 0 = min/max range of C over all pairs of the set
     color_normalise: bool = False      # paper: raw colours; default: map support colours to the reference's
-    hist_achromatic: bool = False      # paper: every pixel by its hue; default: grey/dark pixels in one bin
+    hist_achromatic: bool = False      # paper and default: every pixel by its hue. True puts grey and dark
+                                       # pixels in one bin; measured: fewer static FPs, lower Jaccard (README)
     hist_smooth: bool = False          # paper: hard bins; default: each hue bin shares with its neighbours
 
 
@@ -116,8 +117,8 @@ PRESETS: dict[str, Params] = {
     "default": Params(
         preset="default",
         geometry=GeometryParams(homography_pairs=True, triplet_check=True),
-        patches=PatchParams(homography_reach_frac=0.25),
-        descriptors=DescriptorParams(color_normalise=True, hist_achromatic=True, hist_smooth=True),
+        patches=PatchParams(homography_reach_frac=0.1),
+        descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02),
     ),
 }
