@@ -54,6 +54,11 @@ def image_channels(rgb: np.ndarray, hist_bins: int, achromatic: bool = False) ->
     return ImageChannels(gx, gy, color_bin.astype(np.uint8))
 
 
+def image_channels_for(rgb: np.ndarray, dp) -> ImageChannels:
+    """image_channels with the binning of a DescriptorParams (the one call the pipeline makes)."""
+    return image_channels(rgb, dp.hist_bins, dp.hist_achromatic)
+
+
 def _remap(img: np.ndarray, xy: np.ndarray, interp: int) -> np.ndarray:
     """Sample img at points xy (..., 2) (pixel coordinates); returns (...) values."""
     shape = xy.shape[:-1]

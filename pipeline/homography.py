@@ -19,7 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from .descriptors import image_channels, smooth_hist
+from .descriptors import image_channels_for, smooth_hist
 from .params import Params
 from .photometric import normalise_aligned
 
@@ -84,7 +84,7 @@ def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.n
     nby, nbx = -(-h // s) + 2 * PAD, -(-w // s) + 2 * PAD
     feats = []
     for img, valid in ((rgb_ref, np.ones((h, w), np.float32)), (warped, inside.astype(np.float32))):
-        ch = image_channels(img, dp.hist_bins, dp.hist_achromatic)
+        ch = image_channels_for(img, dp)
         blk = _block_features(ch.gx, ch.gy, ch.color_bin, valid, s, nby, nbx, dp.hog_bins, dp.hist_bins)
         feats.append(_patches(*blk, s, dp.hog_floor, dp.hist_smooth))
     (hr, cr, vr), (hs, cs, vs) = feats
@@ -131,6 +131,11 @@ def match_pair_homography(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.n
                       time.perf_counter() - t0, kind="homography", H=H)
 
 
+def _centre(index, s: int):
+    """Pixel coordinate of the centre of the patch whose first block is `index` (padded grid)."""
+    return (index - PAD + 1.5) * s - 0.5
+
+
 def _within_reach(points: np.ndarray, s: int, grid: tuple[int, int], size: tuple[int, int], reach: float
                   ) -> np.ndarray:
     """(py, px) bool: the patch centre lies inside the convex hull of `points` ((K, 2) float x, y),
@@ -146,8 +151,8 @@ def _within_reach(points: np.ndarray, s: int, grid: tuple[int, int], size: tuple
         cv2.fillConvexPoly(free, cv2.convexHull(xy[ok]), 0)
     dist = cv2.distanceTransform(free, cv2.DIST_L2, 5)
     py, px = grid
-    cy = np.clip(((np.arange(py) - PAD + 1.5) * s - 0.5).round().astype(np.int64), 0, h - 1)
-    cx = np.clip(((np.arange(px) - PAD + 1.5) * s - 0.5).round().astype(np.int64), 0, w - 1)
+    cy = np.clip(_centre(np.arange(py), s).round().astype(np.int64), 0, h - 1)
+    cx = np.clip(_centre(np.arange(px), s).round().astype(np.int64), 0, w - 1)
     return dist[np.ix_(cy, cx)] <= reach
 
 
@@ -164,8 +169,7 @@ def _splat_grid(conf_h, conf_c, in_view, has, s, size, sigma):
             i, j = by - di, bx - dj                           # patch whose top-left block is (i, j)
             ok = (i >= 0) & (i < py) & (j >= 0) & (j < px)
             ic, jc = np.clip(i, 0, py - 1), np.clip(j, 0, px - 1)
-            cy = (i - PAD + 1.5) * s - 0.5
-            cx = (j - PAD + 1.5) * s - 0.5
+            cy, cx = _centre(i, s), _centre(j, s)
             wgt = np.exp(-((ys - cy) ** 2 + (xs - cx) ** 2) * inv) * ok
             wu = wgt * in_view[ic, jc]
             wc = wgt * has[ic, jc]

@@ -45,8 +45,8 @@ class PatchParams:
     scale_from_features: bool = False  # centre candidate widths on the pair's SIFT scale ratio
     min_valid_ref: float = 1 / 3       # a reference patch needs this share of its samples in view
     min_valid_candidate: float = 2 / 3  # a candidate needs this share of its samples in view
-    homography_reach_frac: float = 0.0  # homography pairs: 0 = H trusted everywhere; else only this far
-                                       # (x working max side) from an H inlier, beyond it no evidence
+    homography_reach_frac: float = 0.0  # homography pairs: 0 = H trusted everywhere; else inside the hull of
+                                       # its inliers and this far (x working max side) beyond; farther, no evidence
     homography_search: int = 1         # homography pairs: search +-this many blocks (patch / 3) for parallax
 
 

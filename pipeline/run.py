@@ -19,7 +19,7 @@ import numpy as np
 
 from . import cache as cache_mod
 from .aggregate import Normaliser, combine, cumulative_dynamic, match_probability
-from .descriptors import image_channels
+from .descriptors import image_channels_for
 from .features import Features, detect
 from .loading import InputError, PhotoSet
 from .homography import match_pair_homography
@@ -86,8 +86,7 @@ class SetResult:
         if patch_ids is None:
             patch_ids = np.unique(np.concatenate(patches_at(r, pixels)))
         rgbs = [p.rgb for p in self.photo_set.photos]
-        dp = self.params.descriptors
-        ch_ref = image_channels(rgbs[i], dp.hist_bins, dp.hist_achromatic)
+        ch_ref = image_channels_for(rgbs[i], self.params.descriptors)
         return explain_patches(r, ch_ref, support_channels(rgbs[i], rgbs[j], g, self.params), g.F, g.scale,
                                self.params, patch_ids)
 
@@ -104,7 +103,7 @@ def support_channels(rgb_ref: np.ndarray, rgb_sup: np.ndarray, g: PairGeometry, 
     rgb = rgb_sup
     if params.descriptors.color_normalise:
         rgb = normalise_to_reference(rgb_ref, rgb_sup, g.inliers_ref, g.inliers_sup)
-    return image_channels(rgb, params.descriptors.hist_bins, params.descriptors.hist_achromatic)
+    return image_channels_for(rgb, params.descriptors)
 
 
 # ----------------------------------------------------------------------------- workers
@@ -120,8 +119,7 @@ def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
 def _channels(i: int):
     ch = _W["channels"]
     if i not in ch:
-        ch[i] = image_channels(_W["rgbs"][i], _W["params"].descriptors.hist_bins,
-                               _W["params"].descriptors.hist_achromatic)
+        ch[i] = image_channels_for(_W["rgbs"][i], _W["params"].descriptors)
     return ch[i]
 
 

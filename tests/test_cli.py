@@ -5,6 +5,7 @@ import json
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -306,7 +307,6 @@ def test_live_serving_with_a_recording_publishes_the_file_when_it_ends(tmp_path,
     assert proc.wait(timeout=30) == 0
     assert read_blueprint_desc(rrd)["focus"]
     # the viewer dies with its parent (PR_SET_PDEATHSIG); on a loaded machine that takes a moment
-    import time
     for _ in range(50):
         left = subprocess.run(["pgrep", "-f", f"rerun --serve-web.*{port.group(1)}"], capture_output=True, text=True)
         if left.stdout.strip() == "":
