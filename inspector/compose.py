@@ -48,7 +48,8 @@ def support_mosaic(snap: SetResult, settings: Settings, terms: TermCache, stems:
             continue
         mp = terms.match_prob(snap, i, j, p)
         kind = "H" if snap.pair_results[(i, j)].kind == "homography" else "F"
-        tiles.append(render.label(render.fit(render.heat(mp), TILE), stems[j], f"{kind} mean {mp.mean():.2f}",
+        # drawn as 1 - P so the colours read like the main map: blue = matched (static), red = no match
+        tiles.append(render.label(render.fit(render.heat(1.0 - mp), TILE), stems[j], f"{kind} match {mp.mean():.2f}",
                                   dim=j not in settings.supports))
     return render.mosaic(tiles, columns)
 

@@ -191,3 +191,13 @@ def test_overlay_layers():
     assert np.array_equal(masked[0, 0], rgb[0, 0])           # outside untouched
     assert not np.array_equal(render.overlay(rgb, dyn, 0.95, render.Layers()),
                               render.overlay(rgb, dyn, 0.5, render.Layers()))
+
+
+def test_support_tiles_draw_a_match_blue_and_no_match_red(run):
+    """The Supports tab's caption says blue = matched (static), red = no match, like the main map:
+    supports that mostly match must come out mostly blue."""
+    from inspector import compose
+    snap, i, terms, s = all_supports(run)
+    assert min(terms.match_prob(snap, i, j, s.params()).mean() for j in snap.supports[i]) > 0.6
+    tiles = compose.support_mosaic(snap, s, terms, ["x"] * len(snap.photo_set.photos)).astype(int)
+    assert (tiles[..., 2] - tiles[..., 0]).mean() > 20      # blue over red
