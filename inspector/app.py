@@ -91,8 +91,9 @@ class Inspector:
 
     def __init__(self, photo_set: PhotoSet, gts: dict[str, np.ndarray], cache: PairCache, out_dir: Path,
                  host: str = "127.0.0.1", port: int = 8080, preset: str = "default", max_side: int = 640,
-                 workers: int | None = None):
+                 workers: int | None = None, hold: threading.Event | None = None):
         self.photo_set = photo_set
+        self.hold = hold                                   # see SetModel.hold (tests only)
         self.stems = [p.stem for p in photo_set.photos]
         self.gts = gts                                     # stem -> (H, W) uint8 at original size
         self.gts_working = {s: gt_at_working(g, photo_set.photos[self.stems.index(s)].size) for s, g in gts.items()}
@@ -131,7 +132,7 @@ class Inspector:
         with self._lock:
             m = self.models.get(preset)
             if m is None:
-                m = SetModel(self.photo_set, preset, self.cache, self.max_side, self.workers)
+                m = SetModel(self.photo_set, preset, self.cache, self.max_side, self.workers, self.hold)
                 m.add_listener(self._model_changed)
                 self.models[preset] = m
                 m.start()

@@ -74,8 +74,11 @@ class SetModel:
     """
 
     def __init__(self, photo_set: PhotoSet, preset: str, cache: PairCache, max_side: int = 640,
-                 workers: int | None = None):
+                 workers: int | None = None, hold: threading.Event | None = None):
         self.photo_set = photo_set
+        # A gate the run waits at once the support sets are known, before any pair is computed;
+        # tests hold a run "still going" with it instead of racing it (None: no gate).
+        self.hold = hold
         self.params = get_preset(preset).replace(max_side=max_side)
         self.preset = preset
         self.cache = cache
@@ -122,6 +125,9 @@ class SetModel:
                 self.pairs, self.supports = pairs, supports
                 self.first_ref = first_reference(supports)
             self._notify()
+            while self.hold is not None and not self.hold.wait(0.1):
+                if self._cancel.is_set():
+                    raise Cancelled()
             return self.first_ref
 
         def on_pair(ij, result):

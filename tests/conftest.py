@@ -43,3 +43,17 @@ def tiny_set(tmp_path_factory):
     out = tmp_path_factory.mktemp("sets") / "square_small"
     write_set(SETS["square_people"], out, scale=0.4)
     return out
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _own_cache(tmp_path_factory):
+    """No test reads or writes the user's cache (~/.cache/crowdcam): the default cache of every
+    test, and of the subprocesses it starts, is a folder of this session's own."""
+    import os
+    old = os.environ.get("CROWDCAM_CACHE")
+    os.environ["CROWDCAM_CACHE"] = str(tmp_path_factory.mktemp("crowdcam-cache"))
+    yield
+    if old is None:
+        os.environ.pop("CROWDCAM_CACHE", None)
+    else:
+        os.environ["CROWDCAM_CACHE"] = old

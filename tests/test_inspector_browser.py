@@ -7,6 +7,7 @@ Screenshots are kept under the pytest temp dir (printed at the end).
 """
 
 import re
+import threading
 import time
 from pathlib import Path
 from urllib.parse import urlparse
@@ -52,9 +53,12 @@ def app(tmp_path_factory):
     from pipeline.loading import load_gts, load_set
     tmp = tmp_path_factory.mktemp("inspector")
     ps = load_set(SAMPLE_SETS / "tabletop_ball", 256)
-    # one worker and an empty cache: the run is still going when the page opens
+    # an empty cache and a gate: the run holds after the geometry until the test releases it,
+    # so it is still going when the page opens, however slow the browser is to start
+    hold = threading.Event()
     a = Inspector(ps, load_gts(ps), PairCache(tmp / "cache"), tmp / "out",
-                  port=0, max_side=256, workers=1)
+                  port=0, max_side=256, workers=1, hold=hold)
+    a.release = hold.set
     yield a
     a.close()
 
@@ -101,6 +105,7 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page.get_by_text(re.compile(r"(Finding features|Estimating geometry|Matching pairs|Starting)")).first.wait_for(
         timeout=30_000)
     page.screenshot(path=str(shots / "0_progress.png"))
+    app.release()
     page.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=300_000)
     settled(tab)
     snap = model.snapshot()
