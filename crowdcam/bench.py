@@ -3,7 +3,10 @@
 Per set and preset: images, ordered pairs, cold wall seconds (empty cache, including worker
 start-up), seconds per ordered pair, warm seconds (everything from the cache), peak resident
 memory (main process and largest worker), the Jaccard (optimised per image and per set) when the
-set has ground truth, and the share of static pixels above 0.5.
+set has ground truth, the share of static pixels above 0.5, and, for the generator's synthetic
+sets (with cameras.json), the precision of the admitted epipolar pairs' F against the true cameras
+(crowdcam/truth.py): share of pairs with median error < 2 px / pairs with 90th percentile > 10 px /
+median of the pairs' medians in px.
 """
 
 from __future__ import annotations
@@ -51,9 +54,28 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q)
         row["static_fp_rate"] = static_false_positive_rate(probs, gts or None, 0.5)
         row["peak_mb_main"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         row["peak_mb_worker"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        # After the memory peaks: rendering the truth is the bench's work, not the method's.
+        row.update(_f_precision(res))
         q.put(row)
     except Exception as e:       # reported as a row, the bench goes on
         q.put({"set": Path(set_dir).name, "preset": preset, "error": f"{type(e).__name__}: {e}"})
+
+
+def _f_precision(res) -> dict:
+    """{"f_precision": truth.f_precision(res)} (None for sets without cameras.json), plus
+    "f_precision_note" when the truth is there but cannot be used (the row stays valid)."""
+    from crowdcam.truth import f_precision
+    try:
+        return {"f_precision": f_precision(res)}
+    except Exception as e:      # an evaluation aside must not cost the row its timings
+        return {"f_precision": None, "f_precision_note": f"{type(e).__name__}: {e}"}
+
+
+def _f_cell(fp: dict | None) -> str:
+    """share of pairs with median < 2 px / pairs with p90 > 10 px / median of medians, or "–"."""
+    if not fp or not fp["n_measured"]:
+        return "–"
+    return f"{fp['share_median_below_2px']:.0%}/{fp['n_p90_above_10px']}/{fp['median_of_medians_px']:.2f}"
 
 
 def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int | None, out: Path,
@@ -63,7 +85,7 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
     ctx = mp.get_context("spawn")
     rows = []
     head = (f"{'set':<20} {'preset':<8} {'imgs':>4} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'warm s':>7} "
-            f"{'peak MB':>9} {'J img':>11} {'J set':>11} {'static>0.5':>10}")
+            f"{'peak MB':>9} {'J img':>11} {'J set':>11} {'static>0.5':>10} {'F <2px/p90>10/med':>17}")
     print(head)
     for s in sets:
         for preset in presets:
@@ -82,7 +104,9 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
             print(f"{row['set']:<20} {preset:<8} {row['images']:>4} {row['ordered_pairs']:>5} {row['cold_s']:>7.1f} "
                   f"{row['s_per_pair']:>7.2f} {row['warm_s']:>7.2f} "
                   f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} "
-                  f"{row['static_fp_rate']:>10.1%}")
+                  f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
+            if row.get("f_precision_note"):
+                print(f"{'':<20} F precision not measured: {row['f_precision_note']}")
             sys.stdout.flush()
     atomic_write_bytes(out, json.dumps({"max_side": max_side, "rows": rows}, indent=1).encode())
     if not quiet:

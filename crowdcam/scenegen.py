@@ -7,7 +7,9 @@ vignetting, noise and JPEG quality, and takes its photo at its own moment, so th
 people with swinging limbs, turning; a rolling ball) are elsewhere and posed differently in every
 photo. Ground truth comes from the renderer: 255 where a pixel is fully covered by a mover, 128
 on the mover's boundary pixels (partly covered: don't care), 0 elsewhere. `cameras.json` holds
-every camera's K, R, C and its shot time, so tests can compare estimated F with the true one.
+every camera's K, R, C and its shot time, so tests can compare estimated F with the true one;
+`scene_and_cameras` rebuilds a set's scene and cameras, and `render_depth` its depth and movers,
+for the evaluation against the truth (crowdcam/truth.py).
 
 `crowdcam make-samples` re-renders the bundled sets (deterministic per seed).
 """
@@ -361,15 +363,15 @@ def _corners(prim) -> np.ndarray:
     return prim.centre + (signs * prim.radii) @ prim.R.T
 
 
-def _candidate_rays(prim, cam: Camera, grid: np.ndarray) -> np.ndarray:
-    """Indices of the (supersampled) rays inside the primitive's projected bounding box."""
+def _candidate_rays(prim, cam: Camera, grid: np.ndarray, ss: int = SS) -> np.ndarray:
+    """Indices of the rays (`ss` x `ss` per pixel) inside the primitive's projected bounding box."""
     X = _corners(prim)
     xc = (X - cam.C) @ cam.R.T
     if np.any(xc[:, 2] <= 1e-3):
         return grid.ravel()       # straddles the camera plane: test every ray
     uv = (xc @ cam.K.T)[:, :2] / xc[:, 2:3]
-    lo = np.floor((uv.min(axis=0) + 0.5) * SS - 1).astype(int)
-    hi = np.ceil((uv.max(axis=0) + 0.5) * SS + 1).astype(int)
+    lo = np.floor((uv.min(axis=0) + 0.5) * ss - 1).astype(int)
+    hi = np.ceil((uv.max(axis=0) + 0.5) * ss + 1).astype(int)
     x0, y0 = max(lo[0], 0), max(lo[1], 0)
     x1, y1 = min(hi[0], grid.shape[1]), min(hi[1], grid.shape[0])
     if x1 <= x0 or y1 <= y0:
@@ -415,6 +417,32 @@ def render(scene: Scene, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     rgb = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
     cov = cv2.resize(moving.reshape(h * SS, w * SS), (w, h), interpolation=cv2.INTER_AREA)
     return rgb, cov
+
+
+def render_depth(scene: Scene, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Depth and movers at the pixel centres, one ray per pixel (for evaluation, not for photos).
+
+    Returns depth (h, w) float32: z in the camera frame (distance along the optical axis) of the
+    first hit, inf where the ray sees sky; and moving (h, w) bool: the first hit is a moving
+    primitive. The world point of pixel (u, v) is C + depth * R^T K^-1 (u, v, 1).
+    """
+    h, w = cam.size
+    ys, xs = np.mgrid[0:h, 0:w]
+    pix = np.stack([xs.ravel(), ys.ravel(), np.ones(h * w)], axis=1).astype(np.float64)
+    # Rays scaled so that their camera-frame z is 1: the ray parameter t is then the depth itself.
+    rays = pix @ np.linalg.inv(cam.K).T @ cam.R
+    best_t = np.full(h * w, np.inf)
+    moving = np.zeros(h * w, bool)
+    grid = np.arange(h * w).reshape(h, w)
+    for prim in scene.prims:
+        idx = _candidate_rays(prim, cam, grid, ss=1)
+        if len(idx) == 0:
+            continue
+        t, _, _ = _intersect(prim, cam.C, rays[idx])
+        closer = t < best_t[idx]
+        best_t[idx[closer]] = t[closer]
+        moving[idx[closer]] = prim.moving
+    return best_t.reshape(h, w).astype(np.float32), moving.reshape(h, w)
 
 
 @dataclass(frozen=True)
@@ -684,6 +712,88 @@ def build_square_same_spot(rng):
     return scene_at, cams, list(rng.permutation(np.linspace(0, 5, 6)))
 
 
+# ---- scenes that make F hard to estimate (F precision against the true cameras, truth.py) ----
+@dataclass(frozen=True)
+class Stained:
+    """A paving pattern under large-scale stains (wear, wet patches): texture at every distance,
+    from the stones' joints nearby to the stains far away, never repeating exactly."""
+    base: Stones
+    stains: np.ndarray      # (n, n, 1) float32 in [0, 1], tileable
+    period: float           # metres covered by one tile of the stains (not a multiple of a stone)
+
+    def __call__(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        s = _sample(self.stains, u / self.period, v / self.period)
+        return self.base(u, v) * (0.55 + 0.7 * s)
+
+
+def build_arc_wide_ground(rng):
+    """A wide, nearly empty square: textured paving dominates every photo, with a kiosk, a tree,
+    bollards and one distant low building as the only structures off the ground plane. Ten
+    cameras on an 80 degree arc, 1.2-3.5 m high, looking down at the square; two walkers. Most
+    matches lie on one plane, so F is only pinned down by the few structures off it."""
+    tex = _people_textures(rng, {
+        "ground": Stained(stones(rng, (0.45, 0.3), (0.56, 0.52, 0.47), var=0.5, joint=0.07),
+                          _fbm(rng, 512, (4, 8, 16, 32), 1), 23.7),
+        "paint": tex_plain(rng, (0.92, 0.9, 0.84), var=0.15),
+        "posters": tex_posters(rng, 1024), "metal": tex_plain(rng, (0.3, 0.32, 0.35), var=0.3),
+        "facade": tex_facade(rng, 1024, wall=(0.78, 0.7, 0.62), floors=2, bays=9),
+        "bark": tex_plain(rng, (0.35, 0.25, 0.18), var=0.5), "foliage": tex_foliage(rng)})
+    # painted markings: a few long thin stripes lying on the ground (strong edges in all directions)
+    stripes = [(rng.uniform(-8, 8, 2), rng.uniform(0, np.pi), rng.uniform(4, 10)) for _ in range(4)]
+
+    def scene_at(t):
+        s = Scene(textures=tex, sun=_unit(np.array([0.3, -0.6, 0.75])))
+        s.quad([-30, -30, 0], [60, 0, 0], [0, 60, 0], "ground", tile=1.0)
+        for (x, y), a, length in stripes:
+            d, n = np.array([np.cos(a), np.sin(a), 0]), np.array([-np.sin(a), np.cos(a), 0])
+            s.quad(np.array([x, y, 0.004]) - d * length / 2 - n * 0.06, d * length, n * 0.12, "paint", tile=1.0)
+        s.quad([-30, 26, 0], [60, 0, 0], [0, 0, 7], "facade", tile=(30.0, 7.0))
+        s.box([4.0, 5.0, 0], (2.2, 1.8, 2.5), 0.5, "posters", tile=8.0, top_tex="metal")
+        for x, y in ((-3.0, -1.0), (-1.8, -1.2), (-0.6, -1.4)):
+            s.box([x, y, 0], (0.18, 0.18, 0.9), 0.0, "metal", tile=1.0)
+        add_tree(s, (-6.0, 6.0), 5.5)
+        _walkers(s, t, [((-5.0, 1.0), 0.3, 1.3, "shirt_a", "trousers_a", 1.78),
+                        ((5.0, 0.0), 2.6, 1.1, "shirt_b", "trousers_b", 1.68)])
+        return s
+    n = 10
+    # evenly spread over the arc (with jitter), so the arc really spans about 80 degrees
+    azs = np.linspace(-2.3, -0.9, n) + rng.uniform(-0.04, 0.04, n)
+    cams = []
+    for az in azs:
+        r = 10.0 * rng.uniform(0.85, 1.2)
+        C = np.array([r * np.cos(az), 1.5 + r * np.sin(az), rng.uniform(1.2, 3.5)])
+        tgt = np.array([0.0, 1.5, 0.3]) + rng.normal(0, 1.5, 3) * [1, 1, 0.2]
+        size = SIZES[rng.integers(len(SIZES))]
+        cams.append(look_at(C, tgt, rng.uniform(0.75, 1.1) * max(size), size, rng.normal(0, 0.06)))
+    return scene_at, cams, list(rng.permutation(np.linspace(0, 6, n)))
+
+
+def build_low_collinear(rng):
+    """Six low shots (1.0-1.3 m) taken while walking along one line, 30 degrees off the viewing
+    direction, all looking roughly the same way: the camera centres are nearly collinear (all
+    epipoles lie near one image line, near the image border) and the ground is seen at a grazing
+    angle. Two walkers cross the square."""
+    tex = _people_textures(rng, _square_textures(rng))
+
+    def scene_at(t):
+        s = Scene(textures=tex)
+        _square_static(s)
+        _walkers(s, t, [((-5.0, 1.0), 0.1, 1.2, "shirt_a", "trousers_a", 1.78),
+                        ((4.0, 4.0), 3.0, 1.0, "shirt_b", "trousers_b", 1.66)])
+        return s
+    n, a = 6, 0.5
+    along, across = np.array([np.sin(a), np.cos(a), 0]), np.array([np.cos(a), -np.sin(a), 0])
+    cams = []
+    for k in range(n):
+        C = np.array([-4.5, -10.0, 0]) + along * (1.1 * k + rng.normal(0, 0.15)) + across * rng.normal(0, 0.08)
+        C[2] = rng.uniform(1.0, 1.3)
+        view = _rot_z(rng.normal(0, 0.06)) @ np.array([0, 1.0, 0])
+        tgt = C + 15 * view + [0, 0, rng.normal(0.5, 0.4)]
+        size = SIZES[rng.integers(len(SIZES))]
+        cams.append(look_at(C, tgt, rng.uniform(0.75, 1.1) * max(size), size, rng.normal(0, 0.03)))
+    return scene_at, cams, list(rng.permutation(np.linspace(0, 5, n)))
+
+
 SETS: dict[str, SetSpec] = {s.name: s for s in [
     SetSpec("square_people", "three people walking across a town square (8 cameras)", 8, 11, build_square_people),
     SetSpec("tabletop_ball", "a ball rolling across a table in a room (7 cameras)", 7, 22, build_tabletop_ball),
@@ -699,6 +809,10 @@ SETS: dict[str, SetSpec] = {s.name: s for s in [
             build_square_wb, look_strength=3.0),
     SetSpec("square_same_spot", "two spots, three rotated shots from each: a mixed set", 6, 88,
             build_square_same_spot),
+    SetSpec("arc_wide_ground", "a wide square of textured paving seen from a wide arc, two walkers (10 cameras)",
+            10, 99, build_arc_wide_ground),
+    SetSpec("low_collinear", "six low cameras nearly on one line, looking the same way, two walkers", 6, 111,
+            build_low_collinear),
 ]}
 
 
@@ -710,26 +824,48 @@ def ground_truth(coverage: np.ndarray) -> np.ndarray:
     return gt
 
 
+def scaled_camera(cam: Camera, scale: float) -> Camera:
+    """The camera rendering an image `scale` times the size (at least 32 px a side), as write_set
+    renders small test sets; the same camera when scale is 1."""
+    if scale == 1.0:
+        return cam
+    h, w = cam.size
+    hs, ws = max(32, round(h * scale)), max(32, round(w * scale))
+    K = cam.K.copy()
+    K[0, 0] *= ws / w
+    K[1, 1] *= hs / h
+    K[0, 2], K[1, 2] = (ws - 1) / 2, (hs - 1) / 2
+    return Camera(K, cam.R, cam.C, (hs, ws))
+
+
+def scene_and_cameras(name: str, scale: float = 1.0
+                      ) -> tuple[Callable[[float], Scene], list[Camera], list[float]]:
+    """Rebuild set `name` as write_set does: (scene at time t, cameras, shot times in s).
+
+    The builder draws from a fresh rng seeded with the set's seed before anything else, so the
+    scene and cameras equal those of the rendered set and its cameras.json (at the same scale).
+    Raises KeyError for a name that is not in SETS.
+    """
+    if name not in SETS:
+        raise KeyError(f"{name!r} is not a generated set (known: {', '.join(SETS)})")
+    spec = SETS[name]
+    scene_at, cams, times = spec.build(np.random.default_rng(spec.seed))
+    return scene_at, [scaled_camera(c, scale) for c in cams], [float(t) for t in times]
+
+
 def write_set(spec: SetSpec, out: Path, scale: float = 1.0) -> None:
     """Render a set to out/images/*.jpg, out/gt/*.png and out/cameras.json (atomically per file)."""
     from pipeline.cache import atomic_write_bytes
 
     rng = np.random.default_rng(spec.seed)
-    scene_at, cams, times = spec.build(rng)
+    scene_at, cams, times = spec.build(rng)      # the rng goes on to draw every camera's look
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "gt").mkdir(parents=True, exist_ok=True)
     meta = {"name": spec.name, "description": spec.description, "generator": "crowdcam make-samples",
             "seed": spec.seed, "convention": "x = K R (X - C); pixel (0, 0) is the centre of the top-left pixel",
             "cameras": []}
     for k, (cam, t) in enumerate(zip(cams, times)):
-        if scale != 1.0:
-            h, w = cam.size
-            hs, ws = max(32, round(h * scale)), max(32, round(w * scale))
-            K = cam.K.copy()
-            K[0, 0] *= ws / w
-            K[1, 1] *= hs / h
-            K[0, 2], K[1, 2] = (ws - 1) / 2, (hs - 1) / 2
-            cam = Camera(K, cam.R, cam.C, (hs, ws))
+        cam = scaled_camera(cam, scale)
         rgb_lin, cov = render(scene_at(float(t)), cam)
         look = random_look(rng, spec.look_strength)
         photo = develop(rgb_lin, look, rng)
