@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -97,10 +98,13 @@ def cmd_detect(args) -> int:
     rep = Reporter(args.quiet)
     params = _params(args)
     set_dir = Path(args.set)
-    photo_set = load_set(set_dir, params.max_side, warn=rep.warn)
+    photo_set = load_set(set_dir, params.max_side, warn=rep.warn, gt_dir=Path(args.gt) if args.gt else None)
     out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name
     if is_inside(out, set_dir):
         raise CliError(f"{out}: the output folder must not be inside the input folder {set_dir}")
+    colmap_dir = Path(args.export_colmap) if args.export_colmap else None
+    if colmap_dir is not None and is_inside(colmap_dir, set_dir):
+        raise CliError(f"{colmap_dir}: --export-colmap must not be inside the input folder {set_dir}")
     threshold = params.aggregate.threshold if args.threshold is None else args.threshold
     if not 0.0 <= threshold <= 1.0:
         raise CliError(f"--threshold must be in [0, 1] (got {threshold})")
@@ -121,7 +125,13 @@ def cmd_detect(args) -> int:
     live = None
     if args.rrd or args.rerun_web:
         extra["rerun_s"], live = _log_rerun(args, res, photo_set, threshold, gts, extra.get("evaluation"), rep)
+    for p, d in zip(photo_set.photos, res.dynamic):
+        if d is not None and not (d > threshold).any():
+            rep.warn(f"{p.path}: no pixel above the threshold {threshold:g} (P_dynamic {float(d.min()):.2f}-"
+                     f"{float(d.max()):.2f}); its mask is empty")
     write_outputs(res, out, threshold, extra)
+    if colmap_dir is not None:
+        _export_colmap(res, colmap_dir, rep)
     n_ok = sum(d is not None for d in res.dynamic)
     n_pairs = len(res.pair_results)
     rep.info(f"wrote {n_ok} maps to {out} ({n_pairs} ordered pairs, "
@@ -129,6 +139,31 @@ def cmd_detect(args) -> int:
     if live is not None:
         _serve_live(live)
     return 0
+
+
+def _export_colmap(res, target: Path, rep) -> None:
+    """The set's reconstruction in COLMAP's text format, put in place complete (staging + rename)."""
+    import shutil
+    import tempfile
+
+    from pipeline.reconstruction import export_colmap_text
+    cams = res.cameras
+    if cams is None or not cams.n_registered:
+        why = "the preset does not reconstruct the set" if cams is None else cams.reasons[0]
+        rep.warn(f"{target}: not written: no reconstruction ({why})")
+        return
+    target.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
+    try:
+        export_colmap_text(cams, res.photo_set.photos, res.keypoints, stage)
+        if target.exists():
+            shutil.rmtree(target)
+        os.replace(stage, target)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    rep.info(f"wrote the reconstruction ({cams.n_registered} cameras, {len(cams.points)} points) "
+             f"in COLMAP's text format to {target}")
 
 
 def _parse_pixels(specs: list[str] | None):
@@ -221,9 +256,8 @@ def _serve_live(live: _LiveSession) -> None:
     import os
 
     from crowdcam.rerun_web import wait_until_interrupted
-    print(f"Rerun web viewer: {live.web.url}  (Ctrl-C to stop)", flush=True)
     try:
-        wait_until_interrupted()
+        wait_until_interrupted(announce=f"Rerun web viewer: {live.web.url}  (Ctrl-C to stop)")
     finally:
         live.rec.disconnect()                   # also writes the file's footer
         live.web.close()
@@ -245,9 +279,8 @@ def cmd_view(args) -> int:
         raise CliError(f"{path}: not a readable crowdcam recording ({e})") from None
     with RerunWeb(web_port=args.port) as web:
         rec = push_file(web, path)
-        print(f"Rerun web viewer: {web.url}  (Ctrl-C to stop)", flush=True)
         try:
-            wait_until_interrupted()
+            wait_until_interrupted(announce=f"Rerun web viewer: {web.url}  (Ctrl-C to stop)")
         finally:
             rec.disconnect()
     return 0
@@ -273,7 +306,7 @@ def cmd_inspect(args) -> int:
     if not 0 <= args.port <= 65535:
         raise CliError(f"--port must be in 0..65535 (got {args.port})")
     _check_host(args.host)
-    photo_set = load_set(set_dir, params.max_side, warn=rep.warn)
+    photo_set = load_set(set_dir, params.max_side, warn=rep.warn, gt_dir=Path(args.gt) if args.gt else None)
     gts = load_gts(photo_set)
     out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name / "inspector"
     if is_inside(out, set_dir):
@@ -287,10 +320,9 @@ def cmd_inspect(args) -> int:
         raise CliError(f"cannot serve on {args.host}:{args.port}: {e.strerror or e}") from None
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         rep.warn(f"serving on {args.host}: anyone who can reach this machine can open the inspector")
-    print(f"crowdcam inspector: {app.url}  ({photo_set.name}, {len(photo_set.photos)} photos; Ctrl-C to stop)",
-          flush=True)
     try:
-        wait_until_interrupted()
+        wait_until_interrupted(announce=f"crowdcam inspector: {app.url}  ({photo_set.name}, "
+                                        f"{len(photo_set.photos)} photos; Ctrl-C to stop)")
     finally:
         app.close()
     return 0
@@ -365,6 +397,23 @@ def cmd_make_samples(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    from crowdcam.calibrate import main as calibrate
+    rep = Reporter(args.quiet)
+    params = _params(args)
+    for d in args.sets:
+        if Path(d).resolve().is_relative_to(SAMPLE_SETS.resolve()):
+            raise CliError(f"{d}: a bundled sample set; calibrate on other sets (or --render N) and test on these")
+    result = calibrate([Path(d) for d in args.sets], args.render, Path(args.out), params, _cache(args),
+                       args.workers, rep.progress)
+    rep.close()
+    print(json.dumps({k: result[k] for k in ("calib_scale", "calib_offset", "best_mean_jaccard")}))
+    for r in result["reliability"]:
+        share = "–" if r["moving_share"] is None else f"{r['moving_share']:.2f}"
+        print(f"P_dynamic {r['p_from']:.1f}-{r['p_to']:.1f}: {r['pixels']:>9} px, moving {share}")
+    return 0
+
+
 # ----------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     from pipeline.params import PRESETS
@@ -385,6 +434,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("set", help="folder of photos, or folder with images/ (and optional gt/)")
     d.add_argument("--out", default=None, help="output folder (default ./crowdcam-out/<set name>)")
     d.add_argument("--threshold", type=float, default=None, help="mask threshold on P_dynamic (default 0.5)")
+    d.add_argument("--gt", default=None, metavar="DIR",
+                   help="ground-truth masks <photo stem>.png (default: gt/ beside the photos or beside images/)")
+    d.add_argument("--export-colmap", default=None, metavar="DIR",
+                   help="write the set's reconstruction (cameras, sparse points) in COLMAP's text format")
     d.add_argument("--rrd", default=None, help="record the run's internals to this Rerun file")
     d.add_argument("--rerun-web", action="store_true", help="stream the run to Rerun's web viewer and serve it")
     d.add_argument("--rr-ref", default=None, help="reference photo (stem) shown first in Rerun")
@@ -404,6 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="address to serve on (default 127.0.0.1: this machine only; other addresses must be given "
                           "explicitly)")
     ins.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    ins.add_argument("--gt", default=None, metavar="DIR",
+                     help="ground-truth masks <photo stem>.png (default: gt/ beside the photos or beside images/)")
     ins.add_argument("--out", default=None,
                      help="where 'Save to output folder' writes (default ./crowdcam-out/<set name>/inspector)")
     common(ins)
@@ -424,6 +479,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--ui", action="store_true",
                    help="measure the inspector's main-view update latency instead (uses the cache)")
     b.set_defaults(fn=cmd_bench)
+
+    c = sub.add_parser("calibrate", help="fit the default preset's probability calibration on rendered sets")
+    c.add_argument("sets", nargs="*", help="calibration set folders with gt/ (never the bundled ones)")
+    c.add_argument("--render", type=int, default=0, help="render this many calibration sets (other seeds)")
+    c.add_argument("--out", default="crowdcam-out/calibration", help="where rendered sets and the result go")
+    common(c)
+    c.set_defaults(fn=cmd_calibrate)
 
     m = sub.add_parser("make-samples", help="render the bundled synthetic sample sets")
     m.add_argument("--out", default=str(SAMPLE_SETS))

@@ -100,13 +100,16 @@ def push_file(web: RerunWeb, path: Path):
     return rec
 
 
-def wait_until_interrupted(poll: float = 0.5) -> None:
+def wait_until_interrupted(poll: float = 0.5, announce: str | None = None) -> None:
     """Sleep (idle) until Ctrl-C or SIGTERM. Handlers are installed explicitly: a process started
-    in the background by a shell inherits SIGINT ignored."""
+    in the background by a shell inherits SIGINT ignored. `announce` is printed (stdout) once they
+    are in place, so that a Ctrl-C right after it is a clean stop, never a traceback."""
     def stop(*_):
         raise KeyboardInterrupt
     old = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
+        if announce:
+            print(announce, flush=True)
         while True:
             time.sleep(poll)
     except KeyboardInterrupt:

@@ -6,6 +6,7 @@ Each function reads a `SetResult` snapshot and a tab's `Settings`; maps come fro
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,6 +67,10 @@ class SweepView:
 def sweep(snap: SetResult, settings: Settings, terms: TermCache) -> SweepView:
     sups = usable_supports(snap, settings)
     p = settings.params()
+    if p.sweep.enabled or p.geometry.peer_homography:      # not a running product: each prefix anew
+        maps = [dynamic_prob(snap, dataclasses.replace(settings, supports=tuple(sups[:k])), terms)
+                for k in range(1, len(sups) + 1)]
+        return SweepView(tuple(sups), tuple(maps))
     probs = [terms.match_prob(snap, settings.ref, j, p) for j in sups]
     maps = [snap.refine_dynamic(settings.ref, d, p) for d in cumulative_dynamic(probs, p.aggregate)]
     return SweepView(tuple(sups), tuple(maps))
@@ -91,6 +96,7 @@ class PixelReport:
     dynamic: float
     evidence: tuple[PixelEvidence, ...]
     values: tuple[float, ...]
+    depth_values: tuple[float, ...] = ()
 
 
 def explain(snap: SetResult, settings: Settings, terms: TermCache, dyn: np.ndarray, xy: np.ndarray
@@ -99,9 +105,11 @@ def explain(snap: SetResult, settings: Settings, terms: TermCache, dyn: np.ndarr
     p = settings.params()
     u, v = int(round(xy[0])), int(round(xy[1]))
     sups = usable_supports(snap, settings)
-    evs = tuple(explain_pixel(snap, i, j, xy) for j in sups)
+    evs = tuple(explain_pixel(snap, i, j, xy, sups) for j in sups)
     vals = tuple(float(terms.match_prob(snap, i, j, p)[v, u]) for j in sups)
-    return PixelReport(np.asarray(xy, np.float64), float(dyn[v, u]), evs, vals)
+    depth = tuple(float(m[v, u]) if (m := snap.depth_match_prob(i, j, sups, p)) is not None else float("nan")
+                  for j in sups)
+    return PixelReport(np.asarray(xy, np.float64), float(dyn[v, u]), evs, vals, depth)
 
 
 def _candidate_text(e: PixelEvidence) -> str:
@@ -131,6 +139,10 @@ def evidence_tiles(snap: SetResult, report: PixelReport, stems: list[str]) -> np
             render.draw_polyline(img, e.patch.cand_quads[e.patch.best_hog], render.HOG_RGB, 2)
         if e.point is not None:
             render.draw_cross(img, e.point, render.LINE_RGB)
+        if e.strip is not None and np.all(np.isfinite(e.strip)):      # the part of the line the depths allow
+            render.draw_polyline(img, e.strip.astype(np.float32), render.STRIP_RGB, 3, closed=False)
+        if e.depth_point is not None and np.all(np.isfinite(e.depth_point)):
+            render.draw_cross(img, e.depth_point, render.STRIP_RGB, size=9)
         tiles.append(render.label(render.fit(img, EVIDENCE_TILE), f"{stems[e.sup]}  P(x|I_s) {val:.2f}",
                                   _candidate_text(e)))
     return render.mosaic(tiles, 1)
@@ -142,15 +154,18 @@ def report_markdown(report: PixelReport, stems: list[str], ref_stem: str, thresh
     verdict = "dynamic" if report.dynamic > threshold else "static"
     lines = [f"**Pixel ({u:.0f}, {v:.0f})** of {ref_stem}: P_dynamic **{report.dynamic:.2f}** "
              f"({verdict} at {threshold:.2f})", "",
-             "| support | pair | P(x\\|I_s) | evidence | best HOG | best colour |", "|---|---|---|---|---|---|"]
-    for e, val in zip(report.evidence, report.values):
+             "| support | pair | P(x\\|I_s) | at the shared depth | evidence | best HOG | best colour |",
+             "|---|---|---|---|---|---|---|"]
+    depth_vals = report.depth_values or (float("nan"),) * len(report.values)
+    for e, val, dv in zip(report.evidence, report.values, depth_vals):
         if e.patch is not None and len(e.patch.cand_quads):
             bh = f"{e.patch.sim_hog[e.patch.best_hog]:.2f}"
             bc = f"{e.patch.sim_color[e.patch.best_color]:.2f}"
         else:
             bh = bc = "–"
         kind = "homography" if e.kind == "homography" else "epipolar"
-        lines.append(f"| {stems[e.sup]} | {kind} | {val:.2f} | {e.evidence:.0%} | {bh} | {bc} |")
+        dtxt = "–" if not np.isfinite(dv) else f"{dv:.2f}"
+        lines.append(f"| {stems[e.sup]} | {kind} | {val:.2f} | {dtxt} | {e.evidence:.0%} | {bh} | {bc} |")
     if not report.evidence:
-        lines.append("| (no support is ready) | | | | | |")
+        lines.append("| (no support is ready) | | | | | | |")
     return "\n".join(lines)

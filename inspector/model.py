@@ -89,6 +89,7 @@ class SetModel:
         self.warnings: list[str] = []
         self.pairs: dict | None = None
         self.supports: list[list[int]] | None = None
+        self.cameras = None
         self.results: dict = {}
         self.first_ref: int | None = None
         self.seconds = 0.0
@@ -120,9 +121,9 @@ class SetModel:
             self.progress = (stage, done, total)
             self._notify()
 
-        def on_geometry(pairs, supports):
+        def on_geometry(pairs, supports, cameras):
             with self._lock:
-                self.pairs, self.supports = pairs, supports
+                self.pairs, self.supports, self.cameras = pairs, supports, cameras
                 self.first_ref = first_reference(supports)
             self._notify()
             while self.hold is not None and not self.hold.wait(0.1):
@@ -173,7 +174,8 @@ class SetModel:
                 return None
             n = len(self.results)
             if self._snap[0] != n:
-                self._snap = (n, assemble(self.photo_set, self.params, self.pairs, self.supports, dict(self.results)))
+                self._snap = (n, assemble(self.photo_set, self.params, self.pairs, self.supports, dict(self.results),
+                                          cameras=self.cameras))
             return self._snap[1]
 
 
@@ -234,14 +236,26 @@ def dynamic_prob(snap: SetResult, settings: Settings, terms: TermCache) -> np.nd
     if not sups:
         return None
     p = settings.params()
+    i = settings.ref
 
     def make():
-        logit = terms.term(snap, settings.ref, sups[0], p).copy()
+        if p.geometry.peer_homography:
+            return snap.dynamic_prob(i, sups, p)
+        logit = terms.term(snap, i, sups[0], p).copy()
         for j in sups[1:]:
-            logit += terms.term(snap, settings.ref, j, p)
-        return snap.refine_dynamic(settings.ref, dynamic_from_log_odds(logit), p)
-    # keyed like the terms (by the normaliser, not the snapshot object, whose id can be reused)
-    key = ("d", id(snap.photo_set), snap.normaliser, dataclasses.replace(settings, threshold=0.0, supports=tuple(sups)))
+            logit += terms.term(snap, i, j, p)
+        if not p.sweep.enabled:
+            return snap.refine_dynamic(i, dynamic_from_log_odds(logit), p)
+        sw = snap.sweep_log_odds(i, sups, p)          # the depth-consistent cue (pipeline/run.py)
+        if sw is not None and p.sweep.weight > 0:
+            logit += p.sweep.weight * sw
+        a = p.aggregate
+        return snap.refine_dynamic(i, dynamic_from_log_odds(a.calib_scale * (logit - a.calib_offset)), p)
+    # keyed like the terms (by the normaliser, not the snapshot object, whose id can be reused), and by
+    # which supports carry a depth sweep
+    swept = tuple(j for j in sups if snap.is_swept(i, j))
+    key = ("d", id(snap.photo_set), snap.normaliser, swept,
+           dataclasses.replace(settings, threshold=0.0, supports=tuple(sups)))
     return terms.get(key, make)
 
 

@@ -16,6 +16,7 @@ GT_RGB = (40, 255, 80)
 HOG_RGB = (60, 220, 60)
 COLOR_RGB = (255, 150, 20)
 LINE_RGB = (255, 235, 0)
+STRIP_RGB = (0, 220, 255)        # the bounded strip and the shared depth (sweep)
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 

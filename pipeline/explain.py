@@ -89,6 +89,12 @@ class PixelEvidence:
     patch: the dominant patch's evidence or None when no patch covers xy. For homography pairs
     its candidates are just the best HOG and best colour ones (sims NaN for the other cue),
     read from the pair's table.
+    Swept pairs (sweep.py) add: strip: (2, 2) float64 the part of the epipolar line the
+    reference's depth range allows (near to far, the bounded strip) in the support; depth_point:
+    where the depth all supports agreed on puts the pixel in the support; depth: that depth
+    (reference camera, the reconstruction's units; inf for the plane at infinity); cost: this
+    support's colour-SSIM cost there (NaN: it does not see it); curve: (D,) its cost at every
+    plane from near to far, and fused_curve: (D,) the fused cost (both NaN where unseen).
     """
 
     ref: int
@@ -101,6 +107,12 @@ class PixelEvidence:
     line: np.ndarray | None = None
     point: np.ndarray | None = None
     window: np.ndarray | None = None
+    strip: np.ndarray | None = None
+    depth_point: np.ndarray | None = None
+    depth: float = float("nan")
+    cost: float = float("nan")
+    curve: np.ndarray | None = None
+    fused_curve: np.ndarray | None = None
 
 
 def _nearest(quads: list[np.ndarray], xy: np.ndarray) -> int:
@@ -108,12 +120,21 @@ def _nearest(quads: list[np.ndarray], xy: np.ndarray) -> int:
     return int(np.argmin(np.linalg.norm(centres - xy, axis=1)))
 
 
-def explain_pixel(res, i: int, j: int, xy) -> PixelEvidence:
+def explain_pixel(res, i: int, j: int, xy, supports: list[int] | None = None) -> PixelEvidence:
     """Evidence behind P(x|I_j) at reference pixel xy (working resolution) for the admitted pair
     (i, j) of a run.SetResult. Uses the pair's own result (and, for epipolar pairs, the matcher's
-    describe functions on the covering patches' strips only)."""
-    pair, g = res.pair_results[(i, j)], res.pairs[(i, j)]
+    describe functions on the covering patches' strips only). For swept pairs, `supports` is the
+    support set whose shared depth is explained (default: the reference's ready supports)."""
+    pair = res.pair_results[(i, j)]
     xy = np.asarray(xy, np.float64).reshape(2)
+    ev = _explain_strips(res, i, j, xy)
+    if pair.sweep is not None:
+        ev = _with_sweep(res, ev, pair, res.pairs[(i, j)], xy, supports)
+    return ev
+
+
+def _explain_strips(res, i: int, j: int, xy: np.ndarray) -> PixelEvidence:
+    pair, g = res.pair_results[(i, j)], res.pairs[(i, j)]
     h, w = pair.evidence.shape
     u, v = int(np.clip(round(xy[0]), 0, w - 1)), int(np.clip(round(xy[1]), 0, h - 1))
     ev = float(pair.evidence[v, u])
@@ -167,3 +188,56 @@ def _explain_homography(params: Params, pair: PairResult, xy: np.ndarray, ev: fl
         patch = PatchEvidence(pid, ref_quad, np.stack(quads), np.array(sh, np.float32), np.array(sc, np.float32),
                               0, len(quads) - 1)
     return PixelEvidence(pair.ref, pair.sup, "homography", xy, ev, 9, patch, point=point, window=window)
+
+
+def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[int] | None) -> PixelEvidence:
+    """The strip evidence plus where the shared depth puts the pixel in the support, the bounded
+    strip (the part of the epipolar line the depth range allows) and the costs."""
+    import dataclasses
+
+    from .sweep import SCALE, UNSEEN
+    i, j = pair.ref, pair.sup
+    sp_ = pair.sweep
+    sups = supports if supports is not None else [k for k in res.supports[i] if (i, k) in res.pair_results]
+    sw = [k for k in sups if res.is_swept(i, k)]
+    f = res.fused(i, sw)
+    gh, gw = f.cost.shape
+    h, w = res.photo_set.photos[i].size
+    gx = int(np.clip(round((xy[0] + 0.5) * gw / w - 0.5), 0, gw - 1))
+    gy = int(np.clip(round((xy[1] + 0.5) * gh / h - 0.5), 0, gh - 1))
+    raw = sp_.cost[gy, gx].astype(np.float32)
+    curve = np.where(raw == UNSEEN, np.nan, raw / SCALE).astype(np.float32)
+    s = sw.index(j)
+    cost = float(f.per_support[s, gy, gx])
+    fused_curve = _fused_curve(res, i, sw, gy, gx)
+    plane = int(f.plane[gy, gx])
+    cams = res.cameras
+    ray = cams.R[i].T @ (np.linalg.inv(cams.K[i]) @ np.array([xy[0], xy[1], 1.0]))
+
+    def project(inv_depth: float) -> np.ndarray:
+        X = np.append(cams.C[i] + ray / inv_depth, 1.0) if inv_depth > 0 else np.append(ray, 0.0)
+        P = cams.P(j)
+        q = P @ X
+        return q[:2] / q[2] if abs(q[2]) > 1e-12 else np.array([np.nan, np.nan])
+    inv = sp_.inv_depths
+    strip = np.stack([project(inv[0]), project(inv[-1])])
+    depth_point = project(inv[plane]) if plane >= 0 else None
+    depth = float(1.0 / inv[plane]) if plane >= 0 and inv[plane] > 0 else float("inf")
+    return dataclasses.replace(ev, strip=strip, depth_point=depth_point, depth=depth, cost=cost, curve=curve,
+                               fused_curve=fused_curve)
+
+
+def _fused_curve(res, i: int, sw: list[int], gy: int, gx: int) -> np.ndarray:
+    """(D,) the fused cost of one grid pixel at every plane (sweep.fuse for one pixel)."""
+    from .sweep import SCALE, UNSEEN
+    pairs = [res.pair_results[(i, k)].sweep for k in sw]
+    D = max(p.cost.shape[2] for p in pairs)
+    vals = np.stack([np.broadcast_to(p.cost[gy, gx], (D,)) for p in pairs]).astype(np.float32)   # (S, D)
+    vals = np.where(vals == UNSEEN, np.inf, vals / SCALE)
+    n = np.isfinite(vals).sum(axis=0)
+    k = np.maximum(np.ceil(n * res.params.sweep.best_share), 1).astype(int)
+    srt = np.sort(vals, axis=0)
+    csum = np.cumsum(np.where(np.isfinite(srt), srt, 0.0), axis=0)
+    fused = np.take_along_axis(csum, (k - 1)[None], axis=0)[0] / k
+    return np.where(n > 0, fused, np.nan).astype(np.float32)
+

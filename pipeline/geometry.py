@@ -101,3 +101,39 @@ def clip_line(l: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
     d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
     i, j = np.unravel_index(np.argmax(d), d.shape)
     return pts[[i, j]].astype(np.float32)
+
+
+def line_points(F: np.ndarray, size_ref: tuple[int, int], size_sup: tuple[int, int], grid: int = 12,
+                per_line: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Sample points on the epipolar lines of a grid of reference pixels, inside the support.
+
+    Returns (x_ref (N, 2), y_sup (N, 2)) float64: y_sup lies on the line F x_ref, `per_line` points
+    spread evenly over the part of the line inside the support image (lines that miss it give none).
+    """
+    h, w = size_ref
+    gx, gy = np.meshgrid(np.linspace(0, w - 1, grid), np.linspace(0, h - 1, max(2, grid * h // max(w, 1))))
+    x_ref = np.column_stack([gx.ravel(), gy.ravel()])
+    xs, ys = [], []
+    t = (np.arange(per_line) + 0.5) / per_line
+    for x, l in zip(x_ref, epipolar_lines(F, x_ref)):
+        seg = clip_line(l, size_sup)
+        if seg is None:
+            continue
+        ys.append(seg[0][None] + t[:, None] * (seg[1] - seg[0])[None])
+        xs.append(np.repeat(x[None], per_line, axis=0))
+    if not xs:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return np.concatenate(xs), np.concatenate(ys).astype(np.float64)
+
+
+def line_spread(F: np.ndarray, F_alt: np.ndarray, size_ref: tuple[int, int], size_sup: tuple[int, int],
+                q: float = 90.0) -> float:
+    """How far the epipolar lines of F_alt lie from those of F over the whole image (not only at
+    the matches): the q-th percentile, over points y on the lines F x of a grid of reference
+    pixels x, of the distance of y to the line F_alt x. Working pixels; inf if no line is in view."""
+    x_ref, y_sup = line_points(F, size_ref, size_sup)
+    if len(x_ref) == 0:
+        return float("inf")
+    l_alt = epipolar_lines(F_alt, x_ref)
+    d = np.abs(np.sum(l_alt[:, :2] * y_sup, axis=1) + l_alt[:, 2])
+    return float(np.percentile(d, q))

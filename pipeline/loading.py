@@ -32,6 +32,8 @@ class Photo:
     orig_size: (H, W) of the decoded, EXIF-oriented original.
     scale: working / original size factor (<= 1).
     key: content hash of the file plus the working size, used by the cache.
+    focal_prior_px: focal length in working pixels from the EXIF 35 mm-equivalent focal length,
+    or None (a prior for the set reconstruction, reconstruction.py).
     """
 
     name: str
@@ -41,6 +43,7 @@ class Photo:
     orig_size: tuple[int, int]
     scale: float
     key: str
+    focal_prior_px: float | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -64,10 +67,10 @@ def find_image_dir(root: Path) -> tuple[Path, Path | None]:
     if not root.is_dir():
         raise InputError(f"{root}: not a folder (give the folder that holds the photos)")
     images = root / "images"
+    gt = root / "gt"
     if images.is_dir():
-        gt = root / "gt"
         return images, (gt if gt.is_dir() else None)
-    return root, None
+    return root, (gt if gt.is_dir() else None)      # photos at the root, ground truth beside them
 
 
 def decode_photo(path: Path) -> np.ndarray:
@@ -109,7 +112,30 @@ def resize_to_max_side(rgb: np.ndarray, max_side: int) -> tuple[np.ndarray, floa
     return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), size[1] / h
 
 
-def load_photo(path: Path, max_side: int) -> Photo:
+FULL_FRAME_DIAGONAL_MM = 43.27      # the 35 mm-equivalent focal length refers to this diagonal
+
+
+def exif_focal_35mm(path: Path) -> tuple[float | None, str | None]:
+    """(35 mm-equivalent focal length in mm, None) from the photo's EXIF, or (None, problem) when
+    the tag is present but unusable (0, absurd), or (None, None) when there is none."""
+    try:
+        from PIL import Image
+        with Image.open(path) as im:            # reads the header only, never the pixels
+            value = im.getexif().get_ifd(0x8769).get(0xA405)
+    except Exception:
+        return None, None
+    if value is None:
+        return None, None
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return None, f"EXIF 35 mm focal length {value!r} is not a number"
+    if not 8.0 <= f <= 600.0:
+        return None, f"EXIF 35 mm focal length {f:g} mm is implausible"
+    return f, None
+
+
+def load_photo(path: Path, max_side: int, warn=None) -> Photo:
     path = Path(path)
     raw = decode_photo(path)
     rgb, scale = resize_to_max_side(raw, max_side)
@@ -118,8 +144,12 @@ def load_photo(path: Path, max_side: int) -> Photo:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     h.update(f"{max_side}:{rgb.shape}".encode())
+    f35, problem = exif_focal_35mm(path)
+    if problem and warn is not None:
+        warn(f"{path}: {problem}; ignored")
+    focal = None if f35 is None else f35 / FULL_FRAME_DIAGONAL_MM * float(np.hypot(*rgb.shape[:2]))
     return Photo(name=path.name, stem=path.stem, path=path, rgb=np.ascontiguousarray(rgb),
-                 orig_size=(raw.shape[0], raw.shape[1]), scale=scale, key=h.hexdigest()[:24])
+                 orig_size=(raw.shape[0], raw.shape[1]), scale=scale, key=h.hexdigest()[:24], focal_prior_px=focal)
 
 
 def list_images(folder: Path) -> tuple[list[Path], list[Path]]:
@@ -132,10 +162,12 @@ def list_images(folder: Path) -> tuple[list[Path], list[Path]]:
     return images, others
 
 
-def load_set(root: Path, max_side: int = 640, warn=None) -> PhotoSet:
+def load_set(root: Path, max_side: int = 640, warn=None, gt_dir: Path | None = None) -> PhotoSet:
     """Load every photo of a set. Unreadable photos are skipped with a warning.
 
-    Raises InputError when the folder is missing or empty, or fewer than two photos load.
+    Ground truth is `gt_dir` when given, else `gt/` beside the photos (or beside `images/`).
+    Raises InputError when the folder is missing or empty, or fewer than two photos load, or
+    gt_dir is given and is not a folder.
     """
     warnings: list[str] = []
 
@@ -144,7 +176,13 @@ def load_set(root: Path, max_side: int = 640, warn=None) -> PhotoSet:
         if warn is not None:
             warn(msg)
 
-    image_dir, gt_dir = find_image_dir(Path(root))
+    image_dir, found_gt = find_image_dir(Path(root))
+    if gt_dir is not None:
+        gt_dir = Path(gt_dir)
+        if not gt_dir.is_dir():
+            raise InputError(f"{gt_dir}: no such ground-truth folder")
+    else:
+        gt_dir = found_gt
     paths, others = list_images(image_dir)
     for p in others:
         _warn(f"{p}: skipped (not an image file type)")
@@ -154,7 +192,7 @@ def load_set(root: Path, max_side: int = 640, warn=None) -> PhotoSet:
     stems: set[str] = set()
     for p in paths:
         try:
-            ph = load_photo(p, max_side)
+            ph = load_photo(p, max_side, _warn)
         except InputError as e:
             _warn(f"{e} -- skipped")
             continue
@@ -165,6 +203,16 @@ def load_set(root: Path, max_side: int = 640, warn=None) -> PhotoSet:
         photos.append(ph)
     if len(photos) < 2:
         raise InputError(f"{image_dir}: fewer than two usable images ({len(photos)} of {len(paths)} loaded)")
+    if gt_dir is not None:
+        masks = sorted(p.stem for p in gt_dir.glob("*.png"))
+        unmatched = [m for m in masks if m not in stems]
+        if masks and len(unmatched) == len(masks):
+            _warn(f"{gt_dir}: no ground-truth mask matches a photo (expected gt/<photo stem>.png, e.g. "
+                  f"{photos[0].stem}.png); ground truth ignored")
+            gt_dir = None
+        elif unmatched:
+            _warn(f"{gt_dir}: {len(unmatched)} mask(s) match no photo ({', '.join(unmatched[:3])}"
+                  f"{'...' if len(unmatched) > 3 else ''})")
     name = Path(root).resolve().name
     return PhotoSet(name=name, root=Path(root), photos=tuple(photos), gt_dir=gt_dir, warnings=tuple(warnings))
 

@@ -20,6 +20,7 @@ from .descriptors import (ImageChannels, color_similarity, hog_similarity, strip
                           window_descriptors)
 from .geometry import epipoles
 from .params import Params
+from .sweep import SweepPair
 from .patches import (RefStrips, SupportSegments, build_ref_strips, build_support_segments, iter_covering,
                       ref_frames, ref_sample_points, support_sample_points)
 
@@ -58,6 +59,8 @@ class PairResult:
     evidence: (h, w) float32 in [0, 1], share of the Eq. 2 weight from patches with candidates.
     kind: "epipolar" (strips and segments describe the patches) or "homography" (patches are a
     block grid, strip/start in the table are block row/column, H maps reference to support).
+    sweep: the pair's cost volume over the reference's depth planes (sweep.SweepPair) when both
+    cameras are known and the preset sweeps depths (default), else None.
     """
 
     ref: int
@@ -72,6 +75,7 @@ class PairResult:
     seconds: float
     kind: str = "epipolar"
     H: np.ndarray | None = None
+    sweep: SweepPair | None = None
 
 
 def patch_length(params: Params) -> int:

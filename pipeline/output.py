@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from .geometry import fundamental_to_original
+from .reconstruction import cameras_in_original_frame
 from .loading import Photo, decode_photo
 from .run import SetResult
 
@@ -57,7 +58,10 @@ def summary_dict(res: SetResult, threshold: float, extra: dict | None = None) ->
         d = g.summary()
         d["ref"], d["sup"] = photos[i].stem, photos[j].stem
         d["F"] = None if g.F is None else fundamental_to_original(g.F, photos[i].scale, photos[j].scale).tolist()
+        if d["uncertainty_px"] is not None:          # in the support's original pixels, like F
+            d["uncertainty_px"] = round(g.uncertainty_px / photos[j].scale, 2)
         pairs.append(d)
+    cams = res.cameras
     return {
         "set": res.photo_set.name,
         "input": str(Path(res.photo_set.root).resolve()),
@@ -67,9 +71,20 @@ def summary_dict(res: SetResult, threshold: float, extra: dict | None = None) ->
         "preset": res.params.preset,
         "parameters": res.params.to_dict(),
         "threshold": threshold,
+        "camera_convention": "x = K R (X - C) in original-resolution pixel coordinates, (0, 0) = centre of the "
+                             "top-left pixel; R world-to-camera rotation, C camera centre; world frame and scale "
+                             "are the reconstruction's own (arbitrary)",
         "images": [{"stem": p.stem, "file": p.name, "size": list(p.orig_size), "working_size": list(p.size),
                     "supports": [photos[j].stem for j in res.supports[i]],
-                    "has_map": res.dynamic[i] is not None} for i, p in enumerate(photos)],
+                    "has_map": res.dynamic[i] is not None,
+                    "camera": (cameras_in_original_frame(cams, i, p.scale)
+                               if cams is not None and cams.registered[i] else None),
+                    "camera_note": (None if cams is None or cams.registered[i] else cams.reasons[i])}
+                   for i, p in enumerate(photos)],
+        "reconstruction": None if cams is None else {
+            "registered": int(cams.n_registered), "points": int(len(cams.points)),
+            "mean_reprojection_error_px": None if not np.isfinite(cams.mean_reproj_px) else round(cams.mean_reproj_px, 3),
+            "seconds": round(cams.seconds, 2)},
         "pairs": pairs,
         "normaliser": res.normaliser.to_dict(),
         "timings": {k: round(v, 3) for k, v in res.timings.items()},

@@ -30,6 +30,24 @@ class GeometryParams:
     homography_parallax_frac: float = 0.0125   # 95th pct. transfer error of static matches / max side (8 px at 640)
     triplet_check: bool = False        # paper: two-view tests only; default: pairs must agree across triplets
     triplet_max_px: float = 4.0        # median chained epipolar distance for a consistent triplet
+    peer_homography: bool = False      # the peer baseline (peer.py): every pair aligned by one homography
+    # Cameras for the whole set (reconstruction.py; departure, default preset). paper: two-view F's only.
+    reconstruction: bool = False
+    recon_min_matches: int = 15        # a pair's verified matches enter the reconstruction from this many
+    recon_init_tri_angle: float = 2.0  # deg; COLMAP's 16 finds no initial pair in sets shot from few spots
+    recon_init_inliers: int = 50       # COLMAP's 100 is more than many CrowdCam pairs have
+    recon_max_seconds: int = 120       # the mapper gives up (and two-view geometry is used) after this
+    recon_focal_guesses: tuple[float, ...] = (1.2, 0.8)  # initial focal / max side without EXIF: COLMAP's
+                                       # default, then a second run; where they disagree, the photos do not decide
+    recon_focal_agree: float = 0.15    # a camera whose focal length differs more between the runs is dropped
+    recon_max_reproj_px: float = 1.5   # observations reprojecting farther after the robust refinement are dropped
+    recon_focal_range: tuple[float, float] = (0.3, 4.0)  # plausible focal length / image side for a phone
+    recon_min_points: int = 20         # a registered photo must see this many reconstructed points
+    recon_agree_px: float = 2.0        # median distance of a pair's own matches to the cameras' epipolar lines
+    recon_min_covisible: int = 12      # a reconstruction pair needs this many points seen by both cameras,
+    recon_min_overlap: float = 0.3     # or this share of each photo's sparse points in view of the other
+    recon_min_baseline: float = 0.005  # baseline / scene depth below which F from cameras is meaningless
+    recon_max_uncertainty_frac: float = 0.0125  # epipolar-line uncertainty limit / max side (8 px at 640)
 
 
 @dataclass(frozen=True)
@@ -77,6 +95,31 @@ class AggregateParams:
     threshold: float = 0.5             # ours: default threshold for the written masks
     refine_radius_frac: float = 0.0    # paper: none; default: guided filter radius / working max side
     refine_eps: float = 0.01           # guided filter regularisation (intensity variance units)
+    # Calibration of the summed static log-odds z (with the sweep): P_dynamic = 1 / (1 + e^(scale (z - offset))).
+    # crowdcam calibrate fits them on rendered sets that are not bundled (the best threshold then sits near 0.5).
+    calib_scale: float = 1.0
+    calib_offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class SweepParams:
+    """Depth-consistent evidence (sweep.py; departure, default preset). paper: per-support strips."""
+
+    enabled: bool = False
+    scale: float = 0.5                 # sweep grid / working resolution (320 x 240 at 640); EVIDENCE_NOTES 10
+    n_planes: int = 150                # planes uniform in inverse depth over the reference's depth range
+    window: int = 7                    # SSIM window on the sweep grid (14 px at 640)
+    lab_weights: tuple[float, float, float] = (1.0, 2.0, 2.0)   # L, a, b: colour counts double
+    lightness_mean: bool = True        # SSIM's luminance term on L (False: structure only on L)
+    blur: float = 0.0                  # Gaussian sigma (grid px) before comparing
+    best_share: float = 0.5            # fuse the best half of the supports that see a point (occlusion)
+    ssim_c1: float = 1.0               # SSIM constants for Lab (L in 0..100): (0.01 * 100)^2, (0.03 * 100)^2
+    ssim_c2: float = 9.0
+    # Calibration of the fused cost into static log-odds, slope * (centre - cost): a cost of
+    # `centre` is P_dynamic = 0.5 (crowdcam calibrate fits both on rendered sets not bundled).
+    calib_slope: float = 12.0
+    calib_centre: float = 0.28
+    weight: float = 1.0                # the cue's weight beside Eq. 3's per-support terms (log-odds)
 
 
 @dataclass(frozen=True)
@@ -87,6 +130,7 @@ class Params:
     patches: PatchParams = field(default_factory=PatchParams)
     descriptors: DescriptorParams = field(default_factory=DescriptorParams)
     aggregate: AggregateParams = field(default_factory=AggregateParams)
+    sweep: SweepParams = field(default_factory=SweepParams)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -102,6 +146,11 @@ class Params:
                                       "hist_achromatic", "hist_smooth")}}
         return json.dumps(d, sort_keys=True)
 
+    def sweep_key_material(self) -> str:
+        """The parameters a per-pair cost volume depends on (not the calibration)."""
+        d = {k: v for k, v in dataclasses.asdict(self.sweep).items() if not k.startswith("calib")}
+        return json.dumps({"max_side": self.max_side, "sweep": d}, sort_keys=True)
+
     def geometry_key_material(self) -> str:
         return json.dumps({"max_side": self.max_side, "geometry": dataclasses.asdict(self.geometry)},
                           sort_keys=True)
@@ -116,11 +165,14 @@ PRESETS: dict[str, Params] = {
     # Ours (issue 5): departures are listed in the README with their measured effect.
     "default": Params(
         preset="default",
-        geometry=GeometryParams(homography_pairs=True, triplet_check=True),
+        geometry=GeometryParams(homography_pairs=True, triplet_check=True, reconstruction=True),
         patches=PatchParams(homography_reach_frac=0.1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
-        aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02),
+        aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, calib_scale=1.23, calib_offset=0.2),
+        sweep=SweepParams(enabled=True, blur=1.0),
     ),
+    # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
+    "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),
 }
 
 

@@ -61,8 +61,17 @@ def _heat(values: np.ndarray) -> np.ndarray:
 
 
 def choose_focus(res) -> int:
-    """The reference shown first: the photo with the most supports."""
-    return int(np.argmax([len(s) for s in res.supports]))
+    """The reference shown first: the photo with the most epipolar supports (they have lines and
+    candidates to show), then the most supports."""
+    def epipolar(i):
+        return sum(res.pair_results[(i, j)].kind == "epipolar" for j in res.supports[i] if (i, j) in res.pair_results)
+    return int(max(range(len(res.supports)), key=lambda i: (epipolar(i), len(res.supports[i]))))
+
+
+def shown_supports(res, i: int) -> list[int]:
+    """Photo i's supports, epipolar pairs first (the first screen shows the first one)."""
+    kind = lambda j: res.pair_results[(i, j)].kind if (i, j) in res.pair_results else ""
+    return sorted(res.supports[i], key=lambda j: (kind(j) != "epipolar", j))
 
 
 def sample_pixels(res, i: int, n: int = 8) -> np.ndarray:
@@ -103,7 +112,7 @@ def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.n
             if res.pair_results[(focus, j)].kind == "epipolar":
                 log_candidates(res, rec, stems, focus, j, pts)
     log_metrics(res, rec)
-    desc = {"focus": stems[focus], "supports": [stems[j] for j in res.supports[focus]],
+    desc = {"focus": stems[focus], "supports": [stems[j] for j in shown_supports(res, focus)],
             "has_gt": bool(gts)}
     rec.log(BLUEPRINT_ENTITY, rr.TextDocument(json.dumps(desc)), static=True)
     _at_start(rec)

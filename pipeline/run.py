@@ -6,6 +6,7 @@ inspector. Per-pair work runs in a process pool (both cores) and is cached on di
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import multiprocessing as mp
 import os
@@ -18,7 +19,8 @@ from typing import Callable, Iterable
 import numpy as np
 
 from . import cache as cache_mod
-from .aggregate import Normaliser, combine, cumulative_dynamic, match_probability
+from .aggregate import (Normaliser, combine, cumulative_dynamic, dynamic_from_log_odds, match_probability,
+                        support_log_odds)
 from .descriptors import image_channels_for
 from .features import Features, detect
 from .loading import InputError, PhotoSet
@@ -27,7 +29,10 @@ from .matching import PairResult, match_pair
 from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
+from .reconstruction import SetCameras, apply_reconstruction, reconstruct
 from .support import PairGeometry, estimate_pair, support_sets, triplet_check
+from .peer import PeerPair, difference, dynamic_from_differences
+from .sweep import Fused, fuse, inverse_depths, sweep_pair
 
 Progress = Callable[[str, int, int], None]
 
@@ -57,20 +62,78 @@ class SetResult:
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     keypoints: list[np.ndarray] = field(default_factory=list)
+    cameras: SetCameras | None = None
     cache_hits: int = 0
     cache_misses: int = 0
+    _fused: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def is_swept(self, i: int, j: int) -> bool:
+        """The pair also has a cost volume of the depth sweep (sweep.py)."""
+        r = self.pair_results.get((i, j))
+        return r is not None and getattr(r, "sweep", None) is not None
+
+    def fused(self, i: int, supports: list[int], params: Params | None = None) -> Fused | None:
+        """The depth-consistent fusion of photo i's swept supports among `supports` (sweep.fuse),
+        or None when none is swept. Cached per support set (the fusion is the costly step)."""
+        sw = tuple(j for j in supports if self.is_swept(i, j))
+        if not sw:
+            return None
+        p = params or self.params
+        key = (i, sw, p.sweep.best_share)
+        if key not in self._fused:
+            if len(self._fused) > 32:
+                self._fused.clear()
+            self._fused[key] = fuse([self.pair_results[(i, j)].sweep for j in sw], p.sweep)
+        return self._fused[key]
+
+    def sweep_log_odds(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray | None:
+        """The depth-consistent cue as static log-odds, (h, w) float32 (0 where no support sees
+        the point), or None when no support among `supports` is swept."""
+        p = params or self.params
+        f = self.fused(i, supports, p)
+        if f is None:
+            return None
+        return self._upsample(i, np.nan_to_num(calibrated_log_odds(f.cost, p), nan=0.0))
+
+    def static_log_odds(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
+        """Evidence that photo i's pixels are static, as log-odds (h, w) float32: Eq. 3's term of
+        every support (per-support strips, homography pairs) plus the depth-consistent cue of the
+        swept ones (sweep_log_odds, weighted by `sweep.weight`). 0 is no evidence."""
+        p = params or self.params
+        logit = np.zeros(self.photo_set.photos[i].size, np.float32)
+        for j in supports:
+            logit += support_log_odds(self.match_prob(i, j, p), p.aggregate)
+        sw = self.sweep_log_odds(i, supports, p) if p.sweep.weight > 0 else None
+        if sw is not None:
+            logit += p.sweep.weight * sw
+        return logit
 
     def dynamic_prob(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
-        """P_dynamic of photo i from the given supports (Eq. 3, then the optional refinement)."""
+        """P_dynamic of photo i from the given supports: Eq. 3 (and, with the sweep, the
+        depth-consistent cue and the calibration); then the optional refinement."""
         p = params or self.params
-        return self.refine_dynamic(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
+        if p.geometry.peer_homography:
+            return self.refine_dynamic(i, dynamic_from_differences([self.pair_results[(i, j)].diff for j in supports]), p)
+        if not p.sweep.enabled:
+            return self.refine_dynamic(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
+        z = self.static_log_odds(i, supports, p)
+        a = p.aggregate
+        return self.refine_dynamic(i, dynamic_from_log_odds(a.calib_scale * (z - a.calib_offset)), p)
 
     def sweep(self, i: int, params: Params | None = None) -> list[np.ndarray]:
         """P_dynamic of photo i after its first 1, 2, ... k supports (the paper's Fig. 5); the last
         equals dynamic_prob(i, supports[i])."""
         p = params or self.params
+        if p.geometry.peer_homography or p.sweep.enabled:
+            return [self.dynamic_prob(i, self.supports[i][:k], p) for k in range(1, len(self.supports[i]) + 1)]
         probs = [self.match_prob(i, j, p) for j in self.supports[i]]
         return [self.refine_dynamic(i, d, p) for d in cumulative_dynamic(probs, p.aggregate)]
+
+    def _upsample(self, i: int, grid_map: np.ndarray) -> np.ndarray:
+        """(gh, gw) sweep-grid map -> (h, w) float32 at working resolution."""
+        import cv2
+        h, w = self.photo_set.photos[i].size
+        return cv2.resize(grid_map.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
 
     def refine_dynamic(self, i: int, dyn: np.ndarray, params: Params | None = None) -> np.ndarray:
         """The optional final refinement of photo i's P_dynamic (refine.py); identity when off."""
@@ -91,10 +154,34 @@ class SetResult:
                                self.params, patch_ids)
 
     def match_prob(self, i: int, j: int, params: Params | None = None) -> np.ndarray:
-        """P(x|I_j) for reference i, (h, w) float32 (Eq. 2)."""
+        """P(x|I_j) for reference i, (h, w) float32 (Eq. 2; for the peer baseline, how well the
+        aligned colours agree)."""
         p = params or self.params
         r = self.pair_results[(i, j)]
+        if r.kind == "peer":                      # how well the aligned support matches: 1 = same colour
+            return np.where(np.isnan(r.diff), 0.5, np.exp(-np.nan_to_num(r.diff) / 15.0)).astype(np.float32)
         return match_probability(r.hog_map, r.color_map, r.evidence, self.normaliser, p.descriptors, p.aggregate)
+
+    def depth_match_prob(self, i: int, j: int, supports: list[int], params: Params | None = None
+                         ) -> np.ndarray | None:
+        """What swept support j said at the depth all swept `supports` agreed on: its cost there,
+        calibrated like the fused cost, as a match probability (h, w) float32 (0.5 where it does
+        not see the point); None when the pair is not swept."""
+        p = params or self.params
+        if not self.is_swept(i, j):
+            return None
+        sw = [k for k in supports if self.is_swept(i, k)]
+        f = self.fused(i, sw, p)
+        c = f.per_support[sw.index(j)]
+        q = 1.0 / (1.0 + np.exp(-np.nan_to_num(calibrated_log_odds(c, p), nan=0.0)))
+        return np.clip(self._upsample(i, q), 0.0, 1.0)
+
+
+def calibrated_log_odds(cost: np.ndarray, params: Params) -> np.ndarray:
+    """Static log-odds of a fused (or per-support) sweep cost, (h, w) float32; NaN stays NaN
+    (callers treat it as 0, no evidence). Monotone: a lower cost is more static."""
+    sp = params.sweep
+    return (sp.calib_slope * (sp.calib_centre - np.asarray(cost, np.float32))).astype(np.float32)
 
 
 def support_channels(rgb_ref: np.ndarray, rgb_sup: np.ndarray, g: PairGeometry, params: Params):
@@ -134,13 +221,22 @@ def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[in
     return (i, j), cache_mod.to_bytes(g)
 
 
-def _task_pair(i: int, j: int, g: PairGeometry) -> tuple[tuple[int, int], bytes]:
+def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None) -> tuple[tuple[int, int], bytes]:
+    """One ordered pair: strips (epipolar pair) or aligned patches (homography pair), and with
+    sweep_args = (cam_i, cam_j, inverse depths) also its cost volume over the depth planes."""
     p = _W["params"]
+    rgb_i, rgb_j = _W["rgbs"][i], _W["rgbs"][j]
+    if p.geometry.peer_homography:
+        return (i, j), cache_mod.to_bytes(difference(i, j, rgb_i, rgb_j, g.H), float16=("diff",))
+    normalised = normalise_to_reference(rgb_i, rgb_j, g.inliers_ref, g.inliers_sup) \
+        if p.descriptors.color_normalise else rgb_j
     if g.is_homography:
-        r = match_pair_homography(i, j, _W["rgbs"][i], _W["rgbs"][j], g.H, p, g.inliers_ref)
+        r = match_pair_homography(i, j, rgb_i, rgb_j, g.H, p, g.inliers_ref)
     else:
-        ch_sup = support_channels(_W["rgbs"][i], _W["rgbs"][j], g, p) if p.descriptors.color_normalise else _channels(j)
+        ch_sup = image_channels_for(normalised, p.descriptors) if p.descriptors.color_normalise else _channels(j)
         r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, p)
+    if sweep_args is not None:
+        r = dataclasses.replace(r, sweep=sweep_pair(i, j, rgb_i, normalised, *sweep_args, p.sweep))
     return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
 
 
@@ -188,16 +284,49 @@ def _check(cancel: threading.Event | None) -> None:
 
 def assemble(photo_set: PhotoSet, params: Params, pairs: dict, supports: list[list[int]],
              results: dict[tuple[int, int], PairResult], keypoints: list | None = None,
-             timings: dict | None = None, warnings: list | None = None) -> SetResult:
+             timings: dict | None = None, warnings: list | None = None, cameras: SetCameras | None = None
+             ) -> SetResult:
     """A SetResult from pair results (all of them, or those finished so far), with the set-level
     normaliser of §3.1.2 over exactly these pairs; no P_dynamic computed yet."""
     n = len(photo_set.photos)
-    norm = Normaliser.from_confidences([r.patches.conf_hog for r in results.values()],
-                                       [r.patches.conf_color for r in results.values()],
+    strips = [r for r in results.values() if r.kind in ("epipolar", "homography")]     # not the peer's
+    norm = Normaliser.from_confidences([r.patches.conf_hog for r in strips], [r.patches.conf_color for r in strips],
                                        params.descriptors.norm_percentile)
     kps = [k if k is not None else np.zeros((0, 2), np.float32) for k in (keypoints or [None] * n)]
     return SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings or {},
-                     warnings or [], keypoints=kps)
+                     warnings or [], keypoints=kps, cameras=cameras)
+
+
+def _sweepable(ij: tuple[int, int], cameras: SetCameras | None, params: Params) -> bool:
+    """Both photos have cameras from the set's reconstruction and the preset sweeps depths."""
+    i, j = ij
+    return (params.sweep.enabled and cameras is not None and bool(cameras.registered[i])
+            and bool(cameras.registered[j]) and np.all(np.isfinite(cameras.depth_range[i])))
+
+
+def _digest_arrays(*arrays) -> str:
+    import hashlib
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a, np.float64)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:24]
+
+
+def set_cameras(photo_set: PhotoSet, params: Params, pairs: dict, keypoints: list[np.ndarray],
+                cache: cache_mod.PairCache) -> SetCameras:
+    """The checked reconstruction of the set (reconstruction.py), cached: it depends on every
+    photo and on the geometry parameters. pairs: PairGeometry per unordered pair (i < j)."""
+    photos = photo_set.photos
+    k = cache_mod.key("cameras", *[p.key for p in photos], params.geometry_key_material())
+    data = cache.get("cameras", k)
+    if data is not None:
+        return cache_mod.from_bytes(SetCameras, data)
+    prior = np.array([p.focal_prior_px if p.focal_prior_px else np.nan for p in photos], float)
+    cams = reconstruct(keypoints, [p.size for p in photos], pairs, [p.rgb for p in photos], params.geometry, prior)
+    cache.put("cameras", k, cache_mod.to_bytes(cams))
+    return cams
 
 
 def default_workers() -> int:
@@ -208,13 +337,13 @@ def default_workers() -> int:
 def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache | None = None,
                workers: int | None = None, progress: Progress | None = None,
                warn: Callable[[str], None] | None = None, only_refs: Iterable[int] | None = None,
-               on_geometry: Callable[[dict, list[list[int]]], int | None] | None = None,
+               on_geometry: Callable[[dict, list[list[int]], SetCameras | None], int | None] | None = None,
                on_pair: Callable[[tuple[int, int], PairResult], None] | None = None,
                cancel: threading.Event | None = None) -> SetResult:
     """Compute P_dynamic for every photo of the set (or only for `only_refs`).
 
-    For viewers that show results as they arrive: `on_geometry(pairs, supports)` is called once
-    the support sets are known (it may return a reference whose pairs are then computed first),
+    For viewers that show results as they arrive: `on_geometry(pairs, supports, cameras)` is called once
+    the support sets and the cameras are known (it may return a reference whose pairs are then computed first),
     `on_pair((i, j), result)` for every pair result (cached ones first). Setting `cancel` stops the run soon after (raises Cancelled).
     """
     cache = cache or cache_mod.PairCache(None)
@@ -277,8 +406,20 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 gdone[0] += 1
                 progress("geometry", gdone[0], len(todo))
             runner.map(_task_geometry, [(i, j, feats[i], feats[j]) for i, j in todo], got_geometry)
+        cameras = None
+        if params.geometry.reconstruction:
+            cameras = set_cameras(photo_set, params, pairs, keypoints, cache)
         for (i, j) in list(pairs):
             pairs[(j, i)] = pairs[(i, j)].reversed()
+        if cameras is not None:
+            pairs = apply_reconstruction(pairs, cameras, [p.size for p in photos], keypoints, params.geometry)
+            for i, why in enumerate(cameras.reasons):
+                if why and cameras.n_registered:
+                    _warn(f"{photos[i].path}: no camera from the set's reconstruction ({why}); "
+                          "its pairs use two-view geometry")
+            if not cameras.n_registered:
+                _warn(f"{photo_set.root}: no reconstruction of the set ({cameras.reasons[0]}); "
+                      "all pairs use two-view geometry")
         if params.geometry.triplet_check:
             pairs = triplet_check(pairs, n, params.geometry.triplet_max_px)
         supports = support_sets(pairs, n)
@@ -292,20 +433,36 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 _warn(f"{photos[i].path}: no usable pair (no other photo has trustworthy geometry with it); "
                       "no map for this photo")
 
-        first = on_geometry(pairs, supports) if on_geometry else None
+        first = on_geometry(pairs, supports, cameras) if on_geometry else None
 
         # 3-5. Pairs: matching maps, cached.
         t1 = time.perf_counter()
         refs = list(range(n)) if only_refs is None else sorted(set(only_refs))
         ordered = sorted(((i, j) for i in refs for j in supports[i]), key=lambda ij: ij[0] != first)
-        pkey = {(i, j): cache_mod.key("pair", photos[i].key, photos[j].key, params.geometry_key_material(),
-                                      params.pair_key_material()) for i, j in ordered}
-        results: dict[tuple[int, int], PairResult] = {}
+        swept = {ij for ij in ordered if _sweepable(ij, cameras, params)}
+        cam = (lambda k: (cameras.K[k], cameras.R[k], cameras.C[k])) if cameras is not None else None
+        inv = {i: inverse_depths((cameras.depth_range[i][0], np.inf), params.sweep.n_planes)
+               for i in {i for i, _ in swept}}
+        pkey = {}
+        for i, j in ordered:
+            g = pairs[(i, j)]
+            parts = [photos[i].key, photos[j].key, params.pair_key_material(),
+                     _digest_arrays(g.F if g.F is not None else np.zeros(0), g.H if g.H is not None else np.zeros(0),
+                                    g.inliers_ref, g.inliers_sup), str(params.geometry.peer_homography)]
+            if (i, j) in swept:
+                parts += [params.sweep_key_material(), _digest_arrays(*cam(i), *cam(j), inv[i])]
+            pkey[(i, j)] = cache_mod.key("pair", *parts)
+
+        def load(ij, data):
+            if params.geometry.peer_homography:
+                return cache_mod.from_bytes(PeerPair, data, float32=("diff",))
+            return cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
+        results: dict[tuple[int, int], PairResult | PeerPair] = {}
         todo = []
         for ij in ordered:
             data = cache.get("pair", pkey[ij])
             if data is not None:
-                results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
+                results[ij] = load(ij, data)
                 if on_pair:
                     on_pair(ij, results[ij])
             else:
@@ -317,19 +474,20 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             _check(cancel)
             ij, data = res
             cache.put("pair", pkey[ij], data)
-            results[ij] = cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
+            results[ij] = load(ij, data)
             if on_pair:
                 on_pair(ij, results[ij])
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
-        runner.map(_task_pair, [(i, j, pairs[(i, j)]) for i, j in todo], got_pair)
+        runner.map(_task_pair, [(i, j, pairs[(i, j)], (cam(i), cam(j), inv[i]) if (i, j) in swept else None)
+                                for i, j in todo], got_pair)
         timings["pairs_s"] = time.perf_counter() - t1
     finally:
         runner.close()
 
     # 6. Set-level normalisation and aggregation.
     t2 = time.perf_counter()
-    result = assemble(photo_set, params, pairs, supports, results, keypoints, timings, warnings)
+    result = assemble(photo_set, params, pairs, supports, results, keypoints, timings, warnings, cameras)
     for i in refs:
         if supports[i]:
             result.dynamic[i] = result.dynamic_prob(i, supports[i])

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from .features import Features, match
-from .geometry import convex_hull_share, symmetric_epipolar_distance
+from .geometry import convex_hull_share, line_spread, symmetric_epipolar_distance
 from .params import GeometryParams
 
 OK = "ok"                     # epipolar pair: F is trustworthy
@@ -39,6 +39,13 @@ class PairGeometry:
     H: (3, 3) float64 with x_sup ~ H x_ref for homography pairs, else None.
     inliers_ref / inliers_sup: (K, 2) float32 matched inlier positions; outliers_*: the rest.
     scale: median ratio of SIFT sizes sup/ref over inliers (the pair's relative zoom).
+    inlier_idx: (K, 2) int32 keypoint indices (ref, sup) of the inliers; match_idx: (M, 2) int32
+    of all mutual ratio-test matches (the set reconstruction verifies them itself).
+    source: where F comes from: "reconstruction" (cameras of the whole set, reconstruction.py),
+    "two-view" (this pair's matches alone), "homography", or "" when rejected.
+    uncertainty_px: estimated 1-sigma uncertainty of the epipolar lines (or, for homography
+    pairs, of the transferred points) in working pixels, 90th percentile over the image; NaN
+    when unknown.
     """
 
     ref: int
@@ -57,6 +64,10 @@ class PairGeometry:
     outliers_ref: np.ndarray
     outliers_sup: np.ndarray
     H: np.ndarray | None = None
+    inlier_idx: np.ndarray | None = None
+    match_idx: np.ndarray | None = None
+    source: str = ""
+    uncertainty_px: float = float("nan")
 
     @property
     def ok(self) -> bool:
@@ -76,13 +87,18 @@ class PairGeometry:
             scale=1.0 / self.scale if self.scale > 0 else self.scale,
             inliers_ref=self.inliers_sup, inliers_sup=self.inliers_ref,
             outliers_ref=self.outliers_sup, outliers_sup=self.outliers_ref,
-            H=None if self.H is None else np.linalg.inv(self.H))
+            H=None if self.H is None else np.linalg.inv(self.H),
+            inlier_idx=None if self.inlier_idx is None else self.inlier_idx[:, ::-1].copy(),
+            match_idx=None if self.match_idx is None else self.match_idx[:, ::-1].copy(),
+            source=self.source, uncertainty_px=self.uncertainty_px)
 
     def summary(self) -> dict:
         return {"ref": self.ref, "sup": self.sup, "status": self.status, "reason": self.reason,
                 "n_matches": self.n_matches, "n_inliers": self.n_inliers, "spread": round(self.spread, 3),
                 "homography_share": round(self.homography_share, 3),
-                "instability_px": round(self.instability_px, 3), "scale": round(self.scale, 3)}
+                "instability_px": round(self.instability_px, 3), "scale": round(self.scale, 3),
+                "source": self.source or "rejected",
+                "uncertainty_px": None if not np.isfinite(self.uncertainty_px) else round(self.uncertainty_px, 2)}
 
 
 def _fit_f(p_ref: np.ndarray, p_sup: np.ndarray, thr: float, seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
@@ -113,13 +129,22 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     p_ref = fi.xy[m[:, 0]].astype(np.float32)
     p_sup = fj.xy[m[:, 1]].astype(np.float32)
 
-    def result(F, status, reason, inl=None, spread=0.0, hshare=0.0, instab=0.0, scale=1.0, H=None):
+    def result(F, status, reason, inl=None, spread=0.0, hshare=0.0, instab=0.0, scale=1.0, H=None,
+               unc=float("nan")):
         inl = np.zeros(len(m), bool) if inl is None else inl
+        source = {OK: "two-view", HOMOGRAPHY: "homography"}.get(status, "")
         return PairGeometry(i, j, F, status, reason, len(m), int(inl.sum()), spread, hshare, instab, scale,
-                            p_ref[inl], p_sup[inl], p_ref[~inl], p_sup[~inl], H)
+                            p_ref[inl], p_sup[inl], p_ref[~inl], p_sup[~inl], H, m[inl].astype(np.int32),
+                            m.astype(np.int32), source, unc)
 
     if len(m) < max(8, p.min_inliers):
         return result(None, REJECTED, f"too few feature matches ({len(m)} < {max(8, p.min_inliers)})")
+    if p.peer_homography:              # the peer baseline: one homography per pair, no other test
+        H, hmask = _fit_h(p_ref, p_sup, p.ransac_px * 2.0)
+        inl = np.zeros(len(m), bool) if hmask is None else hmask.ravel().astype(bool)
+        if H is None or inl.sum() < p.min_inliers:
+            return result(None, REJECTED, f"no homography with {p.min_inliers} inliers", inl)
+        return result(None, HOMOGRAPHY, "aligned by one homography (peer baseline)", inl, H=H / H[2, 2])
     F, inl = _fit_f(p_ref, p_sup, p.ransac_px)
     if F is None:
         return result(None, REJECTED, "no fundamental matrix could be fitted")
@@ -151,7 +176,12 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     if not instab <= p.max_instability_px:
         return result(F, REJECTED, f"unstable: F refitted on half the matches moves inliers by "
                       f"{instab:.1f} px (> {p.max_instability_px} px)", inl, spread, hshare, instab, scale)
-    return result(F, OK, "", inl, spread, hshare, instab, scale)
+    # Uncertainty over the whole image, not only at the inliers: the spread of the lines of the
+    # two half-data refits around F's (a two-sample bootstrap); a half fit has sqrt(2) x the noise.
+    F3, _ = _fit_f(p_ref[~half], p_sup[~half], p.ransac_px, seed=2)
+    spreads = [line_spread(F, Fk, size_i, size_j) for Fk in (F2, F3) if Fk is not None]
+    unc = float(np.mean(spreads) / np.sqrt(2)) if spreads else float("inf")
+    return result(F, OK, "", inl, spread, hshare, instab, scale, unc=unc)
 
 
 def _homography_pair(i, j, F, f_inl, p_ref, p_sup, size_i, size_j, scale, hshare, p: GeometryParams, result):
@@ -178,7 +208,7 @@ def _homography_pair(i, j, F, f_inl, p_ref, p_sup, size_i, size_j, scale, hshare
         return result(F, REJECTED, f"degenerate F, and residual parallax after the homography is {parallax:.1f} px "
                       f"(> {limit:.1f} px)", inl, spread, hshare, scale=scale)
     return result(F, HOMOGRAPHY, f"homography pair: one homography explains {hshare:.0%} of the inliers",
-                  inl, spread, hshare, scale=scale, H=H / H[2, 2])
+                  inl, spread, hshare, scale=scale, H=H / H[2, 2], unc=parallax)
 
 
 def _chained(pairs, i: int, j: int, k: int, min_tracks: int = 8) -> float | None:
@@ -226,8 +256,10 @@ def triplet_check(pairs: dict[tuple[int, int], PairGeometry], n: int, max_px: fl
                     v[1] += 1
     out = dict(pairs)
     for (a, b), (n_good, n_eval) in votes.items():
+        if pairs[(a, b)].source != "two-view":
+            continue                      # cameras from the whole set are consistent by construction
         if n_eval >= 2 and n_good / n_eval < 0.5:
-            g = dataclasses.replace(pairs[(a, b)], status=REJECTED,
+            g = dataclasses.replace(pairs[(a, b)], status=REJECTED, source="",
                                     reason=f"inconsistent with the other pairs: {n_eval - n_good} of {n_eval} "
                                            "triplets disagree (repeated texture?)")
             out[(a, b)] = g

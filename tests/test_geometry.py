@@ -77,7 +77,7 @@ def test_triplet_check_rejects_a_pair_fooled_by_repetition():
                 b = shifted
                 F, _ = cv2.findFundamentalMat(a, b, cv2.FM_8POINT)
             empty = np.zeros((0, 2), np.float32)
-            g = PairGeometry(i, j, F, OK, "", 300, 300, 0.5, 0.5, 0.1, 1.0, a, b, empty, empty)
+            g = PairGeometry(i, j, F, OK, "", 300, 300, 0.5, 0.5, 0.1, 1.0, a, b, empty, empty, source="two-view")
             pairs[(i, j)], pairs[(j, i)] = g, g.reversed()
     out = triplet_check(pairs, 4, 4.0)
     assert out[(0, 1)].status == REJECTED and "triplets disagree" in out[(0, 1)].reason

@@ -1,0 +1,633 @@
+"""Cameras for the whole set (`default` preset): one reconstruction, checked, and the pairs'
+geometry derived from it.
+
+Two-view geometry cannot see its own errors away from its inliers: an F that fits matches on one
+or two planes is free elsewhere and passes every two-view test. A camera registered against
+tracks that three or more photos see, with its focal length estimated, fixes every pair it takes
+part in. We use COLMAP's incremental mapper and bundle adjustment through `pycolmap` (maintained,
+CPU only, offline) on *our* features and verified matches (features.py, support.py), so the
+reconstruction and the two-view fallback see the same correspondences.
+
+A reconstruction can be wrong as a whole (focal-depth ambiguity on planar scenes, repeated
+texture), so it is checked against what the photos say before any camera is used (`_check`):
+plausible focal lengths for a phone, enough reconstructed points per photo, low reprojection
+error, and agreement with each pair's own verified matches. Photos that do not register, or fail a
+check, keep the two-view geometry with its tests (support.py). Departure from the paper, which
+uses two-view F's (BEEM) only; the `paper` preset keeps that.
+
+Conventions: working-resolution pixels with (0, 0) at the centre of the top-left pixel (COLMAP
+puts it at (0.5, 0.5); converted at the boundary). x = K R (X - C); F with x_sup^T F x_ref = 0.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import fundamental_from_cameras, symmetric_epipolar_distance
+from .params import GeometryParams
+
+RECONSTRUCTION = "reconstruction"
+
+
+@dataclass(frozen=True)
+class SetCameras:
+    """The checked reconstruction of a set of n photos, at working resolution.
+
+    registered: (n,) bool, the photo has a camera that passed the checks;
+    K, R: (n, 3, 3) float64 intrinsics and world-to-camera rotation; C: (n, 3) float64 centres
+    (NaN where not registered); depth_range: (n, 2) float64 near and far scene depth in front of
+    each camera, from the sparse points it sees (half the 2nd, twice the 98th percentile);
+    points: (M, 3) float64 sparse 3-D points; point_error: (M,) float32 mean reprojection error
+    (px); point_rgb: (M, 3) uint8; obs: (O, 3) int32 rows (point, photo, keypoint index);
+    pair_unc: (n, n) float64 1-sigma epipolar-line uncertainty (px, 90th percentile over the
+    image) from the bundle adjustment's covariance, NaN where unknown;
+    reasons: per photo "" when registered, else why not; focal_prior: (n,) EXIF focal length in
+    working px or NaN; mean_reproj_px: mean reprojection error over all observations.
+    """
+
+    registered: np.ndarray
+    K: np.ndarray
+    R: np.ndarray
+    C: np.ndarray
+    depth_range: np.ndarray
+    points: np.ndarray
+    point_error: np.ndarray
+    point_rgb: np.ndarray
+    obs: np.ndarray
+    pair_unc: np.ndarray
+    reasons: tuple[str, ...]
+    focal_prior: np.ndarray
+    mean_reproj_px: float
+    seconds: float
+
+    @property
+    def n_registered(self) -> int:
+        return int(self.registered.sum())
+
+    def P(self, i: int) -> np.ndarray:
+        """(3, 4) projection matrix of photo i."""
+        return self.K[i] @ np.hstack([self.R[i], -self.R[i] @ self.C[i][:, None]])
+
+    def F(self, i: int, j: int) -> np.ndarray:
+        """(3, 3) F with x_j^T F x_i = 0, unit norm."""
+        return fundamental_from_cameras(self.P(i), self.P(j))
+
+    def covisible(self, i: int, j: int) -> np.ndarray:
+        """(K,) int point indices observed by both photos."""
+        a = self.obs[self.obs[:, 1] == i, 0]
+        b = self.obs[self.obs[:, 1] == j, 0]
+        return np.intersect1d(a, b)
+
+    def view_overlap(self, i: int, j: int, size_j: tuple[int, int]) -> float:
+        """Share of the sparse points photo i sees that fall inside photo j's image (in front of
+        it): how much of i's scene j can speak about (occlusion aside)."""
+        X = self.points[self.obs[self.obs[:, 1] == i, 0]]
+        if len(X) == 0:
+            return 0.0
+        y = (X - self.C[j]) @ self.R[j].T @ self.K[j].T
+        front = y[:, 2] > 0
+        uv = y[front, :2] / y[front, 2:3]
+        h, w = size_j
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+        return float(inside.sum()) / len(X)
+
+    def depth(self, i: int, X: np.ndarray) -> np.ndarray:
+        """(N,) depth along photo i's optical axis of (N, 3) world points."""
+        return (np.asarray(X) - self.C[i]) @ self.R[i][2]
+
+    @staticmethod
+    def empty(n: int, reason: str, focal_prior: np.ndarray | None = None) -> "SetCameras":
+        nan = np.full((n, 3, 3), np.nan)
+        return SetCameras(np.zeros(n, bool), nan, nan.copy(), np.full((n, 3), np.nan), np.full((n, 2), np.nan),
+                          np.zeros((0, 3)), np.zeros(0, np.float32), np.zeros((0, 3), np.uint8),
+                          np.zeros((0, 3), np.int32), np.full((n, n), np.nan), tuple([reason] * n),
+                          np.full(n, np.nan) if focal_prior is None else np.asarray(focal_prior, float),
+                          float("nan"), 0.0)
+
+
+# ----------------------------------------------------------------------------- reconstruction
+def _shift(F: np.ndarray) -> np.ndarray:
+    """F in our pixel convention -> COLMAP's (pixel centres at +0.5)."""
+    T = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])       # ours = T @ colmap
+    return T.T @ F @ T
+
+
+def _input_pairs(pairs: dict, n: int, min_matches: int) -> list[tuple[int, int, np.ndarray, bool]]:
+    """(i, j, (K, 2) keypoint matches, is_homography) for the pairs whose verified matches the
+    reconstruction may use. Pairs rejected as unstable or inconsistent (repeated texture) are left
+    out: their matches are likely wrong."""
+    out = []
+    for i in range(n):
+        for j in range(i + 1, n):
+            g = pairs.get((i, j))
+            m = None if g is None else g.inlier_idx
+            if m is None or len(m) < min_matches:
+                continue
+            if g.reason.startswith(("unstable", "inconsistent")):
+                continue
+            out.append((i, j, m, g.is_homography))
+    return out
+
+
+def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs: dict,
+                rgbs: list[np.ndarray], p: GeometryParams, focal_prior: np.ndarray | None = None) -> SetCameras:
+    """Cameras of the whole set from our keypoints and verified pair matches, then checked.
+
+    keypoints: per photo (N_i, 2) float32 working pixels (the indices that PairGeometry.inlier_idx
+    refers to); sizes: (h, w) per photo; pairs: PairGeometry per unordered pair (i < j);
+    rgbs: (h, w, 3) uint8 per photo (point colours); focal_prior: (n,) working px or NaN.
+
+    The mapping runs twice, from two initial focal lengths. Where the focal length is not
+    determined by the photos (the focal-depth ambiguity of planar or collinear scenes), or a group
+    of cameras is held to the rest by one plane, the two runs end apart: such cameras are dropped
+    and such pairs get the disagreement as their uncertainty.
+    """
+    import dataclasses
+
+    t0 = time.perf_counter()
+    n = len(keypoints)
+    prior = np.full(n, np.nan) if focal_prior is None else np.asarray(focal_prior, float)
+    links = _input_pairs(pairs, n, p.recon_min_matches)
+    if n < 3 or len(links) < 2:
+        return SetCameras.empty(n, "the set has too few overlapping photos for a reconstruction", prior)
+    runs = []
+    for guess in p.recon_focal_guesses:
+        try:
+            runs.append(_map(keypoints, sizes, links, p, prior, guess))
+        except Exception as e:                  # a failed reconstruction is a fallback, not a crash
+            return SetCameras.empty(n, f"the reconstruction failed ({type(e).__name__}: {e})", prior)
+    (rec, ids, n_models), others = runs[0], runs[1:]
+    if rec is None:
+        return SetCameras.empty(n, "no initial pair of photos could be reconstructed", prior)
+    cams = _check(_extract(rec, ids, n, rgbs, keypoints, prior), pairs, sizes, p, n_models)
+    unc = _pair_uncertainty(rec, ids, cams, sizes)
+    for rec2, ids2, _ in others:
+        if rec2 is None:
+            continue
+        alt = _extract(rec2, ids2, n, rgbs, keypoints, prior)
+        cams, spread = _compare_runs(cams, alt, sizes, p)
+        unc = np.fmax(unc, spread)
+    return dataclasses.replace(cams, pair_unc=unc, seconds=time.perf_counter() - t0)
+
+
+def _map(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_guess: float):
+    """One COLMAP incremental mapping of our matches, then the robust refinement.
+
+    Returns (the largest pycolmap.Reconstruction or None, image ids per photo, number of models).
+    Photos without an EXIF prior start at `focal_guess` x the longer side."""
+    import pycolmap
+
+    pycolmap.logging.minloglevel = int(os.environ.get("CROWDCAM_COLMAP_LOG", 2))   # not for our users
+    with tempfile.TemporaryDirectory(prefix="crowdcam-sfm-") as tmp:
+        db_path = os.path.join(tmp, "database.db")
+        db = pycolmap.Database.open(db_path)
+        ids, cameras = [], []
+        verify = pycolmap.TwoViewGeometryOptions()
+        verify.ransac.random_seed = 0
+        for k, ((h, w), kp) in enumerate(zip(sizes, keypoints)):
+            f0 = prior[k] if np.isfinite(prior[k]) else focal_guess * max(h, w)
+            cam = pycolmap.Camera(model="SIMPLE_PINHOLE", width=w, height=h, params=[f0, w / 2, h / 2])
+            cam.has_prior_focal_length = bool(np.isfinite(prior[k]))
+            cameras.append(cam)
+            ids.append(db.write_image(pycolmap.Image(name=f"{k:05d}", camera_id=db.write_camera(cam))))
+            db.write_keypoints(ids[-1], np.asarray(kp, np.float32).reshape(-1, 2) + 0.5)
+        for i, j, m, _ in links:
+            mm = np.ascontiguousarray(m, np.uint32)
+            db.write_matches(ids[i], ids[j], mm)
+            # COLMAP's own two-view geometry of our verified matches: its configuration (calibrated,
+            # planar, panoramic...) and relative pose choose the initial pair and guide registration
+            # (written without them, the mapper registered far fewer photos, with focal errors of 100 %)
+            tvg = pycolmap.estimate_two_view_geometry(cameras[i], keypoints[i].astype(np.float64) + 0.5, cameras[j],
+                                                      keypoints[j].astype(np.float64) + 0.5, mm, verify)
+            if len(tvg.inlier_matches) >= p.recon_min_matches:
+                db.write_two_view_geometry(ids[i], ids[j], tvg)
+        db.close()
+        opts = pycolmap.IncrementalPipelineOptions()
+        # Sets shot from a few spots have small triangulation angles between spots: COLMAP's
+        # default initial pair (16 deg, 100 inliers) then finds none (EVIDENCE_NOTES).
+        opts.mapper.init_min_tri_angle = p.recon_init_tri_angle
+        opts.mapper.init_min_num_inliers = p.recon_init_inliers
+        opts.triangulation.ignore_two_view_tracks = False
+        opts.triangulation.random_seed = 0
+        opts.min_model_size = 3
+        opts.extract_colors = False
+        opts.num_threads = 1                    # deterministic; the mapper takes about a second here
+        opts.random_seed = 0
+        opts.mapper.random_seed = 0
+        opts.max_runtime_seconds = p.recon_max_seconds
+        pycolmap.set_random_seed(0)
+        models = pycolmap.incremental_mapping(db_path, tmp, os.path.join(tmp, "out"), opts)
+    if not models:
+        return None, ids, 0
+    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    _robust_refinement(rec, p.recon_max_reproj_px)
+    return rec, ids, len(models)
+
+
+def _scene_samples(cams: "SetCameras", i: int, j: int, sizes) -> tuple[np.ndarray, np.ndarray]:
+    """Points of photo i at the depths of its scene (5 percentiles of its sparse points) on a grid,
+    and where photo j's camera sees them: (x_i (N, 2), y_j (N, 2)) float64, y_j inside photo j."""
+    z = cams.depth(i, cams.points[cams.obs[cams.obs[:, 1] == i, 0]])
+    z = z[z > 0]
+    if len(z) < 5:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    zs = np.percentile(z, [5, 25, 50, 75, 95])
+    h, w = sizes[i]
+    gx, gy = np.meshgrid(np.linspace(0, w - 1, 12), np.linspace(0, h - 1, 9))
+    x = np.column_stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
+    Xc = ((x @ np.linalg.inv(cams.K[i]).T)[None] * zs[:, None, None]).reshape(-1, 3)
+    y = (Xc @ cams.R[i] + cams.C[i] - cams.C[j]) @ cams.R[j].T @ cams.K[j].T
+    ok = y[:, 2] > 1e-9
+    y = y[ok, :2] / y[ok, 2:3]
+    xi = np.tile(x[:, :2], (len(zs), 1))[ok]
+    hj, wj = sizes[j]
+    inside = (y[:, 0] >= 0) & (y[:, 0] <= wj - 1) & (y[:, 1] >= 0) & (y[:, 1] <= hj - 1)
+    return xi[inside], y[inside]
+
+
+def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParams):
+    """Drop the cameras whose focal length the second run puts elsewhere; (n, n) disagreement of
+    the pairs' epipolar lines between the runs (px, 90th percentile at the scene's depths)."""
+    import dataclasses
+
+    from .geometry import epipolar_lines
+    n = len(cams.registered)
+    reg = cams.registered.copy()
+    reasons = list(cams.reasons)
+    for k in np.nonzero(reg)[0]:
+        if not alt.registered[k]:
+            continue
+        ratio = alt.K[k][0, 0] / cams.K[k][0, 0]
+        if abs(np.log(ratio)) > np.log(1 + p.recon_focal_agree):
+            reg[k], reasons[k] = False, (f"its focal length is not determined by the photos (two reconstructions "
+                                         f"from different starting values differ by {abs(ratio - 1):.0%})")
+    spread = np.full((n, n), np.nan)
+    for i in np.nonzero(reg)[0]:
+        for j in np.nonzero(reg)[0]:
+            if i == j or not (alt.registered[i] and alt.registered[j]):
+                continue
+            xi, yj = _scene_samples(cams, i, j, sizes)
+            if len(xi):
+                lines = epipolar_lines(alt.F(i, j), xi)
+                spread[i, j] = float(np.percentile(np.abs(np.sum(lines[:, :2] * yj, axis=1) + lines[:, 2]), 90))
+    if reg.sum() < 3:
+        reasons = [r or "fewer than three photos passed the reconstruction's checks" for r in reasons]
+        reg[:] = False
+    nan3 = np.full((3, 3), np.nan)
+    K, R, C = cams.K.copy(), cams.R.copy(), cams.C.copy()
+    K[~reg], R[~reg], C[~reg] = nan3, nan3, np.nan
+    return dataclasses.replace(cams, registered=reg, K=K, R=R, C=C, reasons=tuple(reasons),
+                               depth_range=np.where(reg[:, None], cams.depth_range, np.nan)), spread
+
+
+def _robust_refinement(rec, max_px: float, rounds: int = 2) -> None:
+    """A final bundle adjustment with a robust (Cauchy) loss, dropping observations that still
+    reproject farther than `max_px`, twice. COLMAP's own bundle adjustments use a plain squared
+    loss; a few per cent of wrong matches that agree across views (repeated texture) then pull the
+    focal lengths by several per cent, measured on the rendered sets (square_people: focal errors
+    of up to 4 % fell below 1 % for all but one photo)."""
+    import pycolmap
+
+    opts = pycolmap.BundleAdjustmentOptions()
+    opts.print_summary = False
+    opts.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    opts.ceres.loss_function_scale = 1.0
+    opts.ceres.solver_options.num_threads = 1
+    for _ in range(rounds):
+        config = pycolmap.BundleAdjustmentConfig()
+        for iid in rec.reg_image_ids():
+            config.add_image(iid)
+        config.fix_gauge(pycolmap.BundleAdjustmentGauge.THREE_POINTS)
+        # the adjuster itself, not pycolmap.bundle_adjustment, which prints a heading whatever the log level
+        pycolmap.create_default_bundle_adjuster(opts, config, rec).solve()
+        bad = []
+        for pid in rec.point3D_ids():
+            pt = rec.point3D(pid)
+            for el in pt.track.elements:
+                im = rec.image(el.image_id)
+                proj = im.project_point(pt.xyz)
+                if proj is None or np.hypot(*(np.asarray(proj) - np.asarray(im.points2D[el.point2D_idx].xy))) > max_px:
+                    bad.append((pid, el.image_id, el.point2D_idx))
+        if not bad:
+            break
+        for pid, iid, idx in bad:
+            if not rec.exists_point3D(pid):
+                continue
+            if rec.point3D(pid).track.length() <= 2:
+                rec.delete_point3D(pid)
+            else:
+                rec.delete_observation(iid, idx)
+
+
+def _extract(rec, ids: list[int], n: int, rgbs, keypoints, prior) -> SetCameras:
+    """Our arrays from a pycolmap.Reconstruction (image ids -> photo indices, pixel convention)."""
+    index = {iid: k for k, iid in enumerate(ids)}
+    K = np.full((n, 3, 3), np.nan)
+    R = np.full((n, 3, 3), np.nan)
+    C = np.full((n, 3), np.nan)
+    reg = np.zeros(n, bool)
+    for iid in rec.reg_image_ids():
+        k = index[iid]
+        im = rec.image(iid)
+        f, cx, cy = im.camera.params[:3]
+        K[k] = [[f, 0, cx - 0.5], [0, f, cy - 0.5], [0, 0, 1]]
+        pose = im.cam_from_world()
+        R[k] = pose.rotation.matrix()
+        C[k] = -R[k].T @ pose.translation
+        reg[k] = True
+    pids = sorted(rec.point3D_ids())
+    pts = np.array([rec.point3D(q).xyz for q in pids], np.float64).reshape(-1, 3)
+    err = np.array([rec.point3D(q).error for q in pids], np.float32)
+    obs = [(a, index[e.image_id], e.point2D_idx) for a, q in enumerate(pids) for e in rec.point3D(q).track.elements]
+    obs = np.array(obs, np.int32).reshape(-1, 3)
+    rgb = np.zeros((len(pids), 3), np.uint8)
+    if len(obs):                                   # colour of each point in its first observation
+        first = np.unique(obs[:, 0], return_index=True)[1]
+        for a, k, kp in obs[first]:
+            x, y = np.round(keypoints[k][kp]).astype(int)
+            img = rgbs[k]
+            rgb[a] = img[np.clip(y, 0, img.shape[0] - 1), np.clip(x, 0, img.shape[1] - 1)]
+    reasons = tuple("" if reg[k] else "not registered by the reconstruction" for k in range(n))
+    mean_err = float(np.mean(err)) if len(err) else float("nan")
+    cams = SetCameras(reg, K, R, C, np.full((n, 2), np.nan), pts, err, rgb, obs, np.full((n, n), np.nan),
+                      reasons, prior, mean_err, 0.0)
+    return _with_depth_ranges(cams)
+
+
+def _with_depth_ranges(cams: SetCameras) -> SetCameras:
+    import dataclasses
+    rng = np.full((len(cams.registered), 2), np.nan)
+    for k in np.nonzero(cams.registered)[0]:
+        z = cams.depth(k, cams.points[cams.obs[cams.obs[:, 1] == k, 0]])
+        z = z[z > 0]
+        if len(z) >= 5:
+            rng[k] = 0.5 * np.percentile(z, 2), 2.0 * np.percentile(z, 98)
+    return dataclasses.replace(cams, depth_range=rng)
+
+
+def _check(cams: SetCameras, pairs: dict, sizes, p: GeometryParams, n_models: int) -> SetCameras:
+    """Unregister the photos whose camera the photos themselves contradict (see module doc)."""
+    import dataclasses
+    n = len(cams.registered)
+    reg = cams.registered.copy()
+    reasons = list(cams.reasons)
+    if n_models > 1:
+        for k in range(n):
+            if not reg[k] and reasons[k].startswith("not registered"):
+                reasons[k] = "not registered (its photos formed a separate, smaller reconstruction or none)"
+    for k in np.nonzero(reg)[0]:
+        side = max(sizes[k])
+        f = cams.K[k][0, 0]
+        mine = cams.obs[:, 1] == k
+        if not p.recon_focal_range[0] <= f / side <= p.recon_focal_range[1]:
+            reg[k], reasons[k] = False, (f"implausible focal length for a phone ({f / side:.2f} x the image side)")
+        elif mine.sum() < p.recon_min_points:
+            reg[k], reasons[k] = False, f"sees only {int(mine.sum())} reconstructed points (< {p.recon_min_points})"
+        elif np.isfinite(cams.focal_prior[k]) and abs(np.log(f / cams.focal_prior[k])) > np.log(1.5):
+            reg[k], reasons[k] = False, (f"focal length {f:.0f} px is far from its EXIF value "
+                                         f"{cams.focal_prior[k]:.0f} px")
+    # Agreement with each pair's own verified matches (they are what the photos say).
+    bad, evaluated = np.zeros(n, int), np.zeros(n, int)
+    for (i, j), g in pairs.items():
+        if i >= j or not (reg[i] and reg[j]) or g.inlier_idx is None or len(g.inlier_idx) < p.recon_min_matches:
+            continue
+        if g.reason.startswith(("unstable", "inconsistent")):
+            continue
+        d = np.median(symmetric_epipolar_distance(cams.F(i, j), g.inliers_ref, g.inliers_sup))
+        off = d > p.recon_agree_px
+        for k in (i, j):
+            evaluated[k] += 1
+            bad[k] += off
+    for k in np.nonzero(reg)[0]:
+        if evaluated[k] >= 2 and bad[k] > evaluated[k] / 2:
+            reg[k], reasons[k] = False, (f"its camera disagrees with its own matches ({bad[k]} of {evaluated[k]} "
+                                         f"pairs off by more than {p.recon_agree_px:g} px)")
+    if reg.sum() < 3:
+        why = "fewer than three photos passed the reconstruction's checks"
+        reasons = [r or why for r in reasons]
+        reg[:] = False
+    nan3 = np.full((3, 3), np.nan)
+    K, R, C = cams.K.copy(), cams.R.copy(), cams.C.copy()
+    K[~reg], R[~reg], C[~reg] = nan3, nan3, np.nan
+    return dataclasses.replace(cams, registered=reg, K=K, R=R, C=C, reasons=tuple(reasons),
+                               depth_range=np.where(reg[:, None], cams.depth_range, np.nan))
+
+
+# ----------------------------------------------------------------------------- uncertainty
+def _skew(t: np.ndarray) -> np.ndarray:
+    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+
+
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    a = np.linalg.norm(w)
+    if a < 1e-12:
+        return np.eye(3) + _skew(w)
+    k = _skew(w / a)
+    return np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k
+
+
+def line_uncertainty(Ki, Kj, R_rel, t_rel, cov6, x_i: np.ndarray, y_j: np.ndarray, samples: int = 32,
+                     seed: int = 0) -> float:
+    """1-sigma epipolar-line uncertainty in photo j (px), 90th percentile over the given points.
+
+    The relative pose X_j = R_rel X_i + t_rel has covariance cov6 ((6, 6), rotation tangent then
+    translation). x_i (N, 2) are points of photo i and y_j (N, 2) where the nominal cameras see them
+    in photo j (at the scene's depths, `_scene_samples`); their distance to the epipolar lines of
+    poses drawn from the covariance is the lines' spread where it matters: all over the image, not
+    only at the matches.
+    """
+    try:
+        L = np.linalg.cholesky(cov6 + 1e-18 * np.eye(6))
+    except np.linalg.LinAlgError:
+        return float("nan")
+    rng = np.random.default_rng(seed)
+    xh = np.column_stack([x_i, np.ones(len(x_i))])
+    Kj_inv_T, Ki_inv = np.linalg.inv(Kj).T, np.linalg.inv(Ki)
+    d2 = np.zeros(len(y_j))
+    for _ in range(samples):            # a few dozen 3x3 products: the loop is over samples, not pixels
+        dlt = L @ rng.standard_normal(6)
+        F = Kj_inv_T @ _skew(t_rel + dlt[3:]) @ _rodrigues(dlt[:3]) @ R_rel @ Ki_inv
+        lines = xh @ F.T
+        d = (np.sum(lines[:, :2] * y_j, axis=1) + lines[:, 2]) / np.linalg.norm(lines[:, :2], axis=1)
+        d2 += d * d
+    return float(np.percentile(np.sqrt(d2 / samples), 90))
+
+
+def _pair_uncertainty(rec, ids: list[int], cams: SetCameras, sizes) -> np.ndarray:
+    """(n, n) line uncertainty for every pair of registered photos (NaN when not estimable)."""
+    import pycolmap
+
+    n = len(cams.registered)
+    out = np.full((n, n), np.nan)
+    reg = np.nonzero(cams.registered)[0]
+    if len(reg) < 2:
+        return out
+    try:
+        config = pycolmap.BundleAdjustmentConfig()
+        for k in reg:
+            config.add_image(ids[k])
+        config.fix_gauge(pycolmap.BundleAdjustmentGauge.THREE_POINTS)
+        ba = pycolmap.create_default_ceres_bundle_adjuster(pycolmap.BundleAdjustmentOptions(), config, rec)
+        cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, ba)
+    except Exception:
+        cov = None
+    if cov is None:
+        return out
+    # The covariance assumes 1 px image noise; scale it to the residuals we actually have.
+    sigma2 = float(np.mean(cams.point_error.astype(np.float64) ** 2)) if len(cams.point_error) else 1.0
+    for i in reg:
+        pi = rec.image(ids[i]).cam_from_world()
+        for j in reg:
+            if i == j:
+                continue
+            pj = rec.image(ids[j]).cam_from_world()
+            c = cov.get_cam2_cov_from_cam1(ids[i], pi, ids[j], pj)
+            if c is None:
+                continue
+            rel = pj * pi.inverse()
+            R_rel, t_rel = rel.rotation.matrix(), np.asarray(rel.translation)
+            xi, yj = _scene_samples(cams, i, j, sizes)
+            if len(xi):
+                out[i, j] = line_uncertainty(cams.K[i], cams.K[j], R_rel, t_rel, np.asarray(c) * sigma2, xi, yj,
+                                             seed=int(i * n + j))
+    return out
+
+
+# ----------------------------------------------------------------------------- pairs
+def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[np.ndarray],
+                         p: GeometryParams) -> dict:
+    """Pair geometry (both orders) with F from the cameras wherever both photos are registered.
+
+    A homography pair (shots from one spot) stays a homography pair. Other pairs of registered
+    photos become `reconstruction` pairs when their cameras see enough common points, even when
+    the two-view tests rejected them (a plane seen from two places is degenerate for two views,
+    not for cameras known from the whole set). Pairs with an unregistered photo keep the
+    two-view result.
+    """
+    import dataclasses
+
+    from .support import OK, REJECTED
+    out = dict(pairs)
+    n = len(cams.registered)
+    for i in range(n):
+        for j in range(i + 1, n):
+            g = pairs[(i, j)]
+            if not (cams.registered[i] and cams.registered[j]) or g.is_homography:
+                continue
+            common = cams.covisible(i, j)
+            unc = float(np.nanmax([cams.pair_unc[i, j], cams.pair_unc[j, i]])) \
+                if np.isfinite(cams.pair_unc[[i, j], [j, i]]).any() else float("nan")
+            baseline = float(np.linalg.norm(cams.C[i] - cams.C[j]))
+            seen = cams.points[common] if len(common) else cams.points[cams.obs[cams.obs[:, 1] == i, 0]]
+            depth = float(np.median(cams.depth(i, seen))) if len(seen) else float("nan")
+            overlap = min(cams.view_overlap(i, j, sizes[j]), cams.view_overlap(j, i, sizes[i]))
+            if len(common) < p.recon_min_covisible and overlap < p.recon_min_overlap:
+                new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc,
+                                          reason=f"the cameras see little of the same scene ({len(common)} common "
+                                                 f"points, {overlap:.0%} of the scene in view of both)")
+            elif not baseline > p.recon_min_baseline * depth:
+                new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc,
+                                          reason=f"no baseline: the cameras are {baseline / depth:.1%} of the scene "
+                                                 "depth apart, and no homography explains the pair")
+            elif unc > p.recon_max_uncertainty_frac * max(sizes[i]):
+                new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc,
+                                          reason=f"epipolar lines too uncertain ({unc:.1f} px)")
+            else:
+                # the matches that the reconstruction confirmed (track observations in both photos)
+                oi = cams.obs[np.isin(cams.obs[:, 0], common) & (cams.obs[:, 1] == i)]
+                oj = cams.obs[np.isin(cams.obs[:, 0], common) & (cams.obs[:, 1] == j)]
+                oi, oj = oi[np.argsort(oi[:, 0], kind="stable")], oj[np.argsort(oj[:, 0], kind="stable")]
+                _, fi = np.unique(oi[:, 0], return_index=True)
+                _, fj = np.unique(oj[:, 0], return_index=True)
+                idx = np.column_stack([oi[fi, 2], oj[fj, 2]]).astype(np.int32)
+                new = dataclasses.replace(g, F=cams.F(i, j), status=OK, reason="", source=RECONSTRUCTION,
+                                          uncertainty_px=unc, inlier_idx=idx, n_inliers=len(idx),
+                                          inliers_ref=keypoints[i][idx[:, 0]].astype(np.float32),
+                                          inliers_sup=keypoints[j][idx[:, 1]].astype(np.float32))
+            out[(i, j)] = new
+            out[(j, i)] = new.reversed()
+    return out
+
+
+
+# ----------------------------------------------------------------------------- export
+def cameras_in_original_frame(cams: SetCameras, k: int, scale: float) -> dict:
+    """Photo k's camera in its original-resolution pixel frame (our convention: (0, 0) is the
+    centre of the top-left pixel; x = K R (X - C)), as lists for JSON."""
+    from .geometry import scale_matrix
+    K = np.linalg.inv(scale_matrix(scale)) @ cams.K[k]
+    return {"K": K.tolist(), "R": cams.R[k].tolist(), "C": cams.C[k].tolist()}
+
+
+def export_colmap_text(cams: SetCameras, photos, keypoints: list[np.ndarray], out_dir) -> None:
+    """Write the registered cameras, their observations and the sparse points in COLMAP's text
+    format (cameras.txt, images.txt, points3D.txt) at each photo's original resolution, so that
+    COLMAP's GUI, nerfstudio or Rerun can open it. Image names are the photos' file names."""
+    from pathlib import Path
+
+    from .geometry import scale_matrix
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    reg = [k for k in range(len(photos)) if cams.registered[k]]
+    keep_pts = np.isin(cams.obs[:, 1], reg)
+    obs = cams.obs[keep_pts]
+    lines_c = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]"]
+    lines_i = ["# Image list with two lines of data per image:",
+               "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME", "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
+    slot = {}                                          # (point, photo) -> index in that image's POINTS2D
+    for cid, k in enumerate(reg, start=1):
+        ph = photos[k]
+        s = ph.scale
+        K = np.linalg.inv(scale_matrix(s)) @ cams.K[k]          # original frame, our convention
+        H, W = ph.orig_size
+        lines_c.append(f"{cid} PINHOLE {W} {H} " + _num(K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5))
+        q = _quaternion(cams.R[k])
+        t = -cams.R[k] @ cams.C[k]
+        lines_i.append(f"{cid} {_num(*q, *t)} {cid} {ph.name}")
+        mine = obs[obs[:, 1] == k]
+        pts2d = []
+        for n_, (pt, _, kp) in enumerate(mine):
+            x, y = (keypoints[k][kp] + 0.5) / s                   # COLMAP: (0.5, 0.5) is the first pixel's centre
+            pts2d.append(f"{_num(x, y)} {int(pt) + 1}")
+            slot[(int(pt), k)] = n_
+        lines_i.append(" ".join(pts2d))
+    lines_p = ["# 3D point list with one line of data per point:",
+               "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"]
+    image_id = {k: cid for cid, k in enumerate(reg, start=1)}
+    for pt in np.unique(obs[:, 0]):
+        track = [(image_id[int(k)], slot[(int(pt), int(k))]) for _, k, _ in obs[obs[:, 0] == pt]]
+        X, rgb = cams.points[pt], cams.point_rgb[pt]
+        lines_p.append(f"{int(pt) + 1} {_num(*X)} {rgb[0]} {rgb[1]} {rgb[2]} {_num(cams.point_error[pt])} "
+                       + " ".join(f"{a} {b}" for a, b in track))
+    for name, lines in (("cameras.txt", lines_c), ("images.txt", lines_i), ("points3D.txt", lines_p)):
+        (out / name).write_text("\n".join(lines) + "\n")
+
+
+def _num(*values) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def _quaternion(R: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) unit quaternion of a rotation matrix, w >= 0."""
+    m = R
+    tr = np.trace(m)
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    q = np.array(q)
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q

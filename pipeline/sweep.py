@@ -1,0 +1,280 @@
+"""Depth-consistent evidence (`default` preset): one depth shared by all supports (a plane sweep).
+
+The paper asks each support alone whether *some* similar patch lies *anywhere* along the epipolar
+strip (§3.1). Along a strip that crosses a cluttered scene a mover often finds a look-alike, in
+most supports. A static point must be at *one* depth that every support seeing it agrees on; a
+mover has no such depth (EVIDENCE_NOTES: 1.6-9x the Jaccard of searching each support alone with
+the same cost). With the set's cameras (reconstruction.py) we sweep planes parallel to the
+reference image through the depth range its sparse points allow (the strip, bounded), warp every
+support onto each plane (plane-induced homographies: the candidate patches are warped for the
+viewpoint change, which the paper's axis-aligned patches cannot be), and compare windows with a
+colour SSIM cost.
+
+Per pair (reference i, support j) the result is a cost volume (D planes x h x w) at a reduced
+resolution; a support from the same spot whose camera is unknown (a homography pair) gives one
+depth-independent cost map instead (direct comparison of aligned pixels). Per reference,
+`fuse` takes at each depth the mean cost of the best half of the supports that see the point
+(a support where the point is hidden must not veto it) and keeps the best depth. A point that no
+support sees has no evidence.
+
+Shapes: costs are uint8 volumes (h, w, D), cost in [0, 1] scaled by 254, UNSEEN (255) where the support
+does not see the point; planes are indexed from near to far (uniform in inverse depth).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .params import SweepParams
+
+UNSEEN = 255
+SCALE = 254.0
+
+
+@dataclass(frozen=True)
+class SweepPair:
+    """Cost volume of reference `ref` against support `sup` (kind "sweep", D planes), or its
+    depth-independent cost map (kind "aligned", D = 1), at the sweep's resolution (h, w).
+
+    cost: (h, w, D) uint8, cost * 254 or UNSEEN (planes last: the fusion reads a pixel's planes
+    contiguously); inv_depths: (D,) float64 inverse depths of the
+    planes in the reference camera (empty for "aligned"); seconds: compute time.
+    """
+
+    ref: int
+    sup: int
+    cost: np.ndarray
+    inv_depths: np.ndarray
+    seconds: float
+    kind: str = "sweep"
+
+
+@dataclass(frozen=True)
+class Fused:
+    """The supports' answers fused at one depth per pixel (sweep resolution h x w).
+
+    cost: (h, w) float32 in [0, 1], fused cost at the best depth (NaN where no support sees);
+    plane: (h, w) int16 best plane index (-1 without evidence); n_seen: (h, w) uint8 supports
+    that see the point at that depth; per_support: (S, h, w) float32 each support's cost at the
+    chosen plane (NaN where it does not see it), in the order of the given pairs.
+    """
+
+    cost: np.ndarray
+    plane: np.ndarray
+    n_seen: np.ndarray
+    per_support: np.ndarray
+
+
+# ----------------------------------------------------------------------------- geometry
+def sweep_size(size: tuple[int, int], sp: SweepParams) -> tuple[int, int]:
+    """(h, w) of the sweep grid for a working-resolution (h, w)."""
+    h, w = size
+    return max(8, int(round(h * sp.scale))), max(8, int(round(w * sp.scale)))
+
+
+def grid_matrix(size: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
+    """3x3 map from working pixels to sweep-grid pixels (pixel centres at integers)."""
+    sy, sx = grid[0] / size[0], grid[1] / size[1]
+    return np.array([[sx, 0, 0.5 * sx - 0.5], [0, sy, 0.5 * sy - 0.5], [0, 0, 1.0]])
+
+
+def inverse_depths(depth_range: tuple[float, float], n: int) -> np.ndarray:
+    """(n,) inverse depths from near to far, uniform in inverse depth (a step then moves the
+    match by about the same number of pixels anywhere in the range). far = inf puts the last plane
+    at infinity (sky, distant buildings, what lies beyond the sparse points)."""
+    near, far = float(depth_range[0]), float(depth_range[1])
+    return np.linspace(1.0 / near, 0.0 if not np.isfinite(far) else 1.0 / far, n)
+
+
+def plane_homographies(K_i, R_i, C_i, K_j, R_j, C_j, inv_depths: np.ndarray) -> np.ndarray:
+    """(D, 3, 3) homographies mapping reference pixels to support pixels for the planes
+    z_ref = 1 / inv_depth (fronto-parallel to the reference): H = K_j (R + t n^T / d) K_i^-1 with
+    X_j = R X_i + t the relative pose and n = (0, 0, 1) (HZ 13.1)."""
+    R = R_j @ R_i.T
+    t = R_j @ (C_i - C_j)
+    n = np.array([0.0, 0.0, 1.0])
+    Ki_inv = np.linalg.inv(K_i)
+    return np.stack([K_j @ (R + np.outer(t, n) * q) @ Ki_inv for q in inv_depths])
+
+
+# ----------------------------------------------------------------------------- images
+def lab_image(rgb: np.ndarray, grid: tuple[int, int], sp: SweepParams) -> np.ndarray:
+    """(h, w, 3) uint8 RGB -> (gh, gw, 3) float32 Lab at the sweep grid, a and b weighted
+    (colour separates movers from look-alikes better than grey: EVIDENCE_NOTES point 3)."""
+    small = cv2.resize(rgb, (grid[1], grid[0]), interpolation=cv2.INTER_AREA)
+    lab = cv2.cvtColor(small.astype(np.float32) / 255.0, cv2.COLOR_RGB2Lab)
+    if sp.blur > 0:        # tolerance to the sub-plane misalignment of fine texture
+        lab = cv2.GaussianBlur(lab, (0, 0), sp.blur)
+    return lab * np.array(sp.lab_weights, np.float32)
+
+
+def _box(x: np.ndarray, k: int) -> np.ndarray:
+    return cv2.boxFilter(x, cv2.CV_32F, (k, k), borderType=cv2.BORDER_REFLECT)
+
+
+@dataclass(frozen=True)
+class RefStats:
+    """Window statistics of the reference, computed once per reference: mean and variance per
+    channel, (h, w, 3) float32."""
+
+    lab: np.ndarray
+    mean: np.ndarray
+    var: np.ndarray
+
+
+def ref_stats(lab: np.ndarray, k: int) -> RefStats:
+    mean = _box(lab, k)
+    return RefStats(lab, mean, np.maximum(_box(lab * lab, k) - mean * mean, 0.0))
+
+
+def ssim_cost(ref: RefStats, sup: np.ndarray, valid: np.ndarray, k: int, sp: SweepParams) -> np.ndarray:
+    """Colour SSIM cost of an aligned support: (h, w) float32 in [0, 1] (0 = identical windows),
+    NaN where the window is not wholly inside the support.
+
+    sup: (h, w, 3) float32 Lab (weighted) aligned to the reference; valid: (h, w) float32 1 inside.
+    Cost = (1 - mean over channels of SSIM) / 2 (Wang et al. 2004, per channel)."""
+    mu = _box(sup, k)
+    var = np.maximum(_box(sup * sup, k) - mu * mu, 0.0)
+    cov = _box(ref.lab * sup, k) - ref.mean * mu
+    c1, c2 = sp.ssim_c1, sp.ssim_c2
+    lum = (2 * ref.mean * mu + c1) / (ref.mean ** 2 + mu ** 2 + c1)
+    if not sp.lightness_mean:       # brightness varies across the frame (vignetting, shading): L's mean is left out
+        lum[..., 0] = 1.0
+    ssim = lum * (2 * cov + c2) / (ref.var + var + c2)
+    cost = (1.0 - ssim.mean(axis=2)) * 0.5
+    inside = _box(valid, k) > 0.999
+    return np.where(inside, np.clip(cost, 0.0, 1.0), np.nan).astype(np.float32)
+
+
+def _quantise(cost: np.ndarray) -> np.ndarray:
+    q = np.round(np.nan_to_num(cost, nan=0.0) * SCALE).astype(np.uint8)
+    q[np.isnan(cost)] = UNSEEN
+    return q
+
+
+def warp(sup_lab: np.ndarray, H_grid: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Support image sampled at H x for every reference grid pixel x: ((h, w, 3), (h, w) valid)."""
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    size = (grid[1], grid[0])
+    img = cv2.warpPerspective(sup_lab, H_grid, size, flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    ones = np.ones(sup_lab.shape[:2], np.float32)
+    valid = cv2.warpPerspective(ones, H_grid, size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return img, (valid > 0.999).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- per pair
+def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam_ref: tuple, cam_sup: tuple,
+               inv_depths: np.ndarray, sp: SweepParams) -> SweepPair:
+    """Cost volume of one support over the reference's planes.
+
+    rgb_*: (h, w, 3) uint8 working-resolution photos (the support's colours already mapped to the
+    reference's, photometric.py); cam_*: (K, R, C) at working resolution; inv_depths: (D,).
+    """
+    t0 = time.perf_counter()
+    g_ref, g_sup = sweep_size(rgb_ref.shape[:2], sp), sweep_size(rgb_sup.shape[:2], sp)
+    A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
+    Hs = plane_homographies(*cam_ref, *cam_sup, inv_depths)
+    Hs = A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None]
+    rs = ref_stats(lab_image(rgb_ref, g_ref, sp), sp.window)
+    sup_lab = lab_image(rgb_sup, g_sup, sp)
+    cost = np.empty((*g_ref, len(Hs)), np.uint8)
+    for d, H in enumerate(Hs):          # one vectorised warp and comparison per plane (a hypothesis, not a pixel)
+        img, valid = warp(sup_lab, H, g_ref)
+        cost[:, :, d] = _quantise(ssim_cost(rs, img, valid, sp.window, sp))
+    return SweepPair(ref, sup, cost, np.asarray(inv_depths, np.float64), time.perf_counter() - t0)
+
+
+def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.ndarray, valid: np.ndarray,
+                 sp: SweepParams) -> SweepPair:
+    """Direct comparison for a support from the same spot (a homography pair without cameras):
+    rgb_sup_aligned (h, w, 3) uint8 is the support warped into the reference frame, valid (h, w)
+    its coverage. One depth-independent cost map (D = 1)."""
+    t0 = time.perf_counter()
+    g = sweep_size(rgb_ref.shape[:2], sp)
+    rs = ref_stats(lab_image(rgb_ref, g, sp), sp.window)
+    sup = lab_image(rgb_sup_aligned, g, sp)
+    vis = cv2.resize(valid.astype(np.float32), (g[1], g[0]), interpolation=cv2.INTER_AREA)
+    cost = _quantise(ssim_cost(rs, sup, (vis > 0.999).astype(np.float32), sp.window, sp))[:, :, None]
+    return SweepPair(ref, sup, cost, np.zeros(0), time.perf_counter() - t0, kind="aligned")
+
+
+# ----------------------------------------------------------------------------- per reference
+def fuse(pairs: list[SweepPair], sp: SweepParams) -> Fused:
+    """One depth for all supports: at each plane, the mean cost of the best `best_share` of the
+    supports that see the point (at least one); the best plane per pixel.
+
+    pairs: the reference's SweepPairs ("sweep" ones share the same planes; "aligned" ones count
+    at every plane). Returns Fused at the sweep resolution.
+    """
+    assert pairs, "no support to fuse"
+    D = max(p.cost.shape[2] for p in pairs)
+    stack = np.stack([np.broadcast_to(p.cost, (*p.cost.shape[:2], D)) for p in pairs])
+    cost, plane, n_seen, per = _fuse_kernel(stack, float(sp.best_share))
+    per = np.where(per == UNSEEN, np.nan, per.astype(np.float32) / SCALE).astype(np.float32)
+    return Fused(np.where(plane >= 0, cost, np.nan).astype(np.float32), plane, n_seen, per)
+
+
+def _fuse_numba():
+    """The fusion kernel, compiled once (numba): per pixel and plane a partial sort of a handful
+    of supports, a loop numpy cannot vectorise without sorting every (plane, pixel) column."""
+    import numba
+
+    @numba.njit(parallel=True, cache=True, nogil=True)
+    def kernel(stack, share):
+        S, H, W, D = stack.shape
+        cost = np.zeros((H, W), np.float32)
+        plane = np.full((H, W), -1, np.int16)
+        n_seen = np.zeros((H, W), np.uint8)
+        per = np.full((S, H, W), UNSEEN, np.uint8)
+        for y in numba.prange(H):
+            vals = np.empty(S, np.int32)
+            for x in range(W):
+                best = 1e9
+                bp = -1
+                bn = 0
+                for d in range(D):
+                    n = 0
+                    for s_ in range(S):
+                        v = stack[s_, y, x, d]
+                        if v != UNSEEN:
+                            vals[n] = v
+                            n += 1
+                    if n == 0:
+                        continue
+                    k = max(int(np.ceil(n * share)), 1)
+                    total = 0
+                    for a in range(k):              # partial selection sort: the k smallest
+                        m = a
+                        for b in range(a + 1, n):
+                            if vals[b] < vals[m]:
+                                m = b
+                        vals[a], vals[m] = vals[m], vals[a]
+                        total += vals[a]
+                    f = total / k
+                    if f < best:
+                        best, bp, bn = f, d, n
+                if bp >= 0:
+                    cost[y, x] = best / SCALE
+                    plane[y, x] = bp
+                    n_seen[y, x] = bn
+                    for s_ in range(S):
+                        per[s_, y, x] = stack[s_, y, x, bp]
+        return cost, plane, n_seen, per
+    return kernel
+
+
+class _LazyKernel:
+    def __init__(self, make):
+        self._make, self._fn = make, None
+
+    def __call__(self, *args):
+        if self._fn is None:
+            self._fn = self._make()
+        return self._fn(*args)
+
+
+_fuse_kernel = _LazyKernel(_fuse_numba)
