@@ -75,11 +75,15 @@ def _params(args):
     return p
 
 
-def _cache(args):
+def _cache(args, rep=None):
     from pipeline.cache import PairCache, default_cache_dir
     if getattr(args, "no_cache", False):
         return PairCache(None)
-    return PairCache(Path(args.cache_dir) if getattr(args, "cache_dir", None) else default_cache_dir())
+    gb = getattr(args, "cache_max_gb", 5.0)
+    if gb is not None and gb <= 0:
+        raise CliError(f"--cache-max-gb must be positive (got {gb})")
+    return PairCache(Path(args.cache_dir) if getattr(args, "cache_dir", None) else default_cache_dir(),
+                     max_bytes=None if gb is None else int(gb * 2**30), warn=rep.warn if rep is not None else None)
 
 
 def _table_row(name: str, score) -> str:
@@ -111,7 +115,7 @@ def cmd_detect(args) -> int:
     rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, "
              f"max side {params.max_side}")
     t0 = time.perf_counter()
-    res = detect_set(photo_set, params, _cache(args), workers=args.workers, progress=rep.progress, warn=rep.warn)
+    res = detect_set(photo_set, params, _cache(args, rep), workers=args.workers, progress=rep.progress, warn=rep.warn)
     rep.close()
     res.timings["total_s"] = time.perf_counter() - t0
     extra = {}
@@ -314,7 +318,7 @@ def cmd_inspect(args) -> int:
     from crowdcam.rerun_web import wait_until_interrupted
     from inspector.app import Inspector
     try:
-        app = Inspector(photo_set, gts, _cache(args), out, host=args.host, port=args.port, preset=args.preset,
+        app = Inspector(photo_set, gts, _cache(args, rep), out, host=args.host, port=args.port, preset=args.preset,
                         max_side=params.max_side, workers=args.workers)
     except OSError as e:
         raise CliError(f"cannot serve on {args.host}:{args.port}: {e.strerror or e}") from None
@@ -414,6 +418,24 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def cmd_cache(args) -> int:
+    from pipeline.cache import PairCache, default_cache_dir
+    root = Path(args.cache_dir) if args.cache_dir else default_cache_dir()
+    cache = PairCache(root)
+    if args.action == "clear":
+        n = cache.clear()
+        print(f"{root}: deleted {n} entries")
+        return 0
+    entries = cache.entries()
+    kinds: dict[str, list[int]] = {}
+    for p, b, _ in entries:
+        kinds.setdefault(p.parent.parent.name, []).append(b)
+    print(f"{root}: {len(entries)} entries, {sum(b for _, b, _ in entries) / 2**20:.1f} MB")
+    for k, sizes in sorted(kinds.items()):
+        print(f"  {k:<10} {len(sizes):>6} entries  {sum(sizes) / 2**20:9.1f} MB")
+    return 0
+
+
 # ----------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     from pipeline.params import PRESETS
@@ -429,6 +451,8 @@ def build_parser() -> argparse.ArgumentParser:
         if cache:
             p.add_argument("--cache-dir", default=None, help="per-pair cache (default ~/.cache/crowdcam or $CROWDCAM_CACHE)")
             p.add_argument("--no-cache", action="store_true", help="neither read nor write the cache")
+            p.add_argument("--cache-max-gb", type=float, default=5.0,
+                           help="evict the least recently used cache entries beyond this size (default 5)")
 
     d = sub.add_parser("detect", help="compute dynamic-probability maps and masks for a photo set")
     d.add_argument("set", help="folder of photos, or folder with images/ (and optional gt/)")
@@ -479,6 +503,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--ui", action="store_true",
                    help="measure the inspector's main-view update latency instead (uses the cache)")
     b.set_defaults(fn=cmd_bench)
+
+    cc = sub.add_parser("cache", help="show the size of the cache, or clear it")
+    cc.add_argument("action", choices=("info", "clear"))
+    cc.add_argument("--cache-dir", default=None, help="the cache (default ~/.cache/crowdcam or $CROWDCAM_CACHE)")
+    cc.set_defaults(fn=cmd_cache)
 
     c = sub.add_parser("calibrate", help="fit the default preset's probability calibration on rendered sets")
     c.add_argument("sets", nargs="*", help="calibration set folders with gt/ (never the bundled ones)")

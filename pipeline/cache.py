@@ -1,25 +1,32 @@
 """On-disk cache of per-pair results, keyed by image content and parameters.
 
-Entries are .npz files written atomically (temporary file + rename), so an interrupted run never
-leaves a half-written entry. Maps are stored as float16 and every result, fresh or cached, goes
-through the same quantisation, so a cached run gives exactly the maps of a cold run.
+Entries are .npz payloads behind a small header (magic, format version, payload length, SHA-256),
+written atomically (temporary file + rename), so an interrupted run never leaves a half-written
+entry in place. On read the header is checked: a truncated, corrupt or foreign entry (a crash, a
+full disk, another version) is reported as a warning, deleted and recomputed, never a traceback.
+Reads refresh an entry's time, and a size cap evicts the least recently used entries. Maps are
+stored as float16 and every result, fresh or cached, goes through the same quantisation, so a
+cached run gives exactly the maps of a cold run.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
 import os
+import struct
 import tempfile
+import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from .params import digest
 
-CODE_VERSION = "10"      # bump when a change alters per-pair results
+CODE_VERSION = "11"      # bump when a change alters per-pair results
 
 
 def default_cache_dir() -> Path:
@@ -102,18 +109,64 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         raise
 
 
-class PairCache:
-    """Get/put serialised dataclasses by key. `root=None` disables caching."""
+MAGIC = b"CCCACHE1"
+FORMAT = 1
+_HEADER = struct.Struct("<8sIQ32s")            # magic, format, payload length, sha256 of the payload
 
-    def __init__(self, root: Path | None):
+
+def pack(payload: bytes) -> bytes:
+    """Header + payload, as stored on disk."""
+    return _HEADER.pack(MAGIC, FORMAT, len(payload), hashlib.sha256(payload).digest()) + payload
+
+
+def unpack(data: bytes) -> bytes:
+    """The payload of a stored entry; ValueError naming what is wrong with it."""
+    if len(data) < _HEADER.size:
+        raise ValueError(f"truncated ({len(data)} bytes)")
+    magic, fmt, length, digest = _HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise ValueError("not a crowdcam cache entry")
+    if fmt != FORMAT:
+        raise ValueError(f"cache format {fmt}, expected {FORMAT}")
+    payload = data[_HEADER.size:]
+    if len(payload) != length:
+        raise ValueError(f"truncated ({len(payload)} of {length} bytes)")
+    if hashlib.sha256(payload).digest() != digest:
+        raise ValueError("checksum mismatch")
+    return payload
+
+
+class PairCache:
+    """Get/put serialised results by key. `root=None` disables caching.
+
+    max_bytes: size cap; after writes beyond it the least recently used entries are evicted
+    (down to 90 %). warn: called with a one-line message for every bad entry found.
+    """
+
+    def __init__(self, root: Path | None, max_bytes: int | None = 5 * 2**30, warn: Callable[[str], None] | None = None):
         self.root = Path(root) if root is not None else None
+        self.max_bytes = max_bytes
+        self.warn = warn
         self.hits = 0
         self.misses = 0
+        self.healed = 0
+        self._size: int | None = None       # bytes under root, scanned on the first write
+        self._lock = threading.Lock()
 
     def path(self, kind: str, key: str) -> Path | None:
         return None if self.root is None else self.root / kind / key[:2] / f"{key}.npz"
 
+    def _bad(self, p: Path, why: str) -> None:
+        self.healed += 1
+        if self.warn is not None:
+            self.warn(f"{p}: bad cache entry ({why}); deleted, it will be recomputed")
+        try:
+            p.unlink()
+        except OSError:
+            pass
+
     def get(self, kind: str, key: str) -> bytes | None:
+        """The payload of an entry, or None (missing, unreadable, or bad: then deleted)."""
         p = self.path(kind, key)
         if p is None or not p.exists():
             self.misses += 1
@@ -123,17 +176,99 @@ class PairCache:
         except OSError:
             self.misses += 1
             return None
+        try:
+            payload = unpack(data)
+        except ValueError as e:
+            self._bad(p, str(e))
+            self.misses += 1
+            return None
+        try:
+            os.utime(p)                      # least recently *used* goes first
+        except OSError:
+            pass
         self.hits += 1
-        return data
+        return payload
+
+    def load(self, kind: str, key: str, decode: Callable[[bytes], Any]) -> Any | None:
+        """get() and decode; an entry that passes its checksum but does not decode (written by
+        other code) is treated like a bad one."""
+        data = self.get(kind, key)
+        if data is None:
+            return None
+        try:
+            return decode(data)
+        except Exception as e:
+            self.hits -= 1
+            self.misses += 1
+            self._bad(self.path(kind, key), f"cannot be decoded: {type(e).__name__}")
+            return None
 
     def put(self, kind: str, key: str, data: bytes) -> None:
         p = self.path(kind, key)
         if p is None:
             return
+        blob = pack(data)
         try:
-            atomic_write_bytes(p, data)
+            atomic_write_bytes(p, blob)
         except OSError:
-            pass      # a cache that cannot be written only costs time
+            return          # a cache that cannot be written only costs time
+        if self.max_bytes is not None:
+            with self._lock:
+                if self._size is None:
+                    self._size = self.size()
+                self._size += len(blob)
+                over = self._size > self.max_bytes
+            if over:
+                self.evict(int(self.max_bytes * 0.9))
+
+    def entries(self) -> list[tuple[Path, int, float]]:
+        """(path, bytes, last use) of every entry."""
+        if self.root is None or not self.root.is_dir():
+            return []
+        out = []
+        for p in self.root.glob("*/*/*.npz"):
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            out.append((p, st.st_size, st.st_mtime))
+        return out
+
+    def size(self) -> int:
+        return sum(b for _, b, _ in self.entries())
+
+    def evict(self, target_bytes: int) -> int:
+        """Delete least recently used entries until at most target_bytes remain; returns how many."""
+        entries = sorted(self.entries(), key=lambda e: e[2])
+        total = sum(b for _, b, _ in entries)
+        n = 0
+        for p, b, _ in entries:
+            if total <= target_bytes:
+                break
+            try:
+                p.unlink()
+                total -= b
+                n += 1
+            except OSError:
+                pass
+        with self._lock:
+            self._size = total
+        return n
+
+    def clear(self) -> int:
+        """Delete every entry (and the temporary files of interrupted writes); returns how many."""
+        n = 0
+        if self.root is None or not self.root.is_dir():
+            return 0
+        for p in list(self.root.glob("*/*/*.npz")) + list(self.root.glob("*/*/.tmp-*")):
+            try:
+                p.unlink()
+                n += p.suffix == ".npz"
+            except OSError:
+                pass
+        with self._lock:
+            self._size = 0
+        return n
 
 
 def key(*parts: str) -> str:

@@ -15,18 +15,28 @@ Entity tree (stems are the photos' file stems):
     /pairs/<ref>/<sup>/sup/...            in the support: inliers, outliers, epipole, epilines (the
                                           corresponding lines), candidates (coloured by HOG
                                           similarity), best (best candidates, labelled with scores)
-    /pairs/<ref>/<sup>/match_prob         P(x|I_sup), Eq. 2 (8-bit heat map)
-    /pairs/<ref>/<sup>/match_overlay      the same over the reference photo
+    /pairs/<ref>/<sup>/mismatch           1 - P(x|I_sup) (Eq. 2), 8-bit heat map: blue = the support
+                                          matches (static), red = no match, as in the inspector
+    /pairs/<ref>/<sup>/mismatch_overlay   the same over the reference photo
     /pairs/<ref>/<sup>/no_evidence        where the support has no candidate (class 1)
     /dynamic/<ref>/prob                   P_dynamic, Eq. 3 (16-bit heat map)
     /dynamic/<ref>/mask                   mask at the threshold
     /dynamic/<ref>/overlay                heat map blended over the photo, mask outlined
     /dynamic/<ref>/gt                     ground truth (when the set has it), /dynamic/<ref>/jaccard
-    /dynamic/<ref>/sweep                  P_dynamic after 1, 2, ... k supports (timeline "supports")
+    /dynamic/<ref>/sweep                  P_dynamic after 1, 2, ... k supports (timeline "supports";
+                                          for the first reference only when the preset sweeps depths:
+                                          each step is a fusion of its own)
+    /dynamic/<ref>/depth                  the depth all supports agreed on (sweep), near = bright
+    /world/points                         the reconstruction's sparse points (3-D)
+    /world/cameras/<stem>                 each registered camera: pose, pinhole and its photo
     /metrics/...                          timings and counts (scalars)
 
 Timelines: "patch" steps through the sampled reference patches (each with its candidates), and
 "supports" through the support sweep (the paper's Fig. 5).
+
+Budget: candidates are logged for the first epipolar support of every reference (8 sampled
+patches each), and for every epipolar support of the first reference; all pairs would multiply
+the recording's size by the number of supports for little more to see.
 """
 
 from __future__ import annotations
@@ -105,15 +115,18 @@ def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.n
             static=True)
     for i, j in sorted(res.pairs):
         log_pair(res, rec, stems, i, j)
-    log_dynamic(res, rec, stems, gts or {}, scores or {}, threshold)
-    if res.dynamic[focus] is not None:
-        pts = sample_pixels(res, focus) if pixels is None else np.asarray(pixels, np.float64)
-        for j in res.supports[focus]:
-            if res.pair_results[(focus, j)].kind == "epipolar":
-                log_candidates(res, rec, stems, focus, j, pts)
+    log_dynamic(res, rec, stems, gts or {}, scores or {}, threshold, focus)
+    log_world(res, rec, stems)
+    for i in range(len(photos)):
+        if res.dynamic[i] is None:
+            continue
+        pts = sample_pixels(res, i) if (pixels is None or i != focus) else np.asarray(pixels, np.float64)
+        epi = [j for j in shown_supports(res, i) if res.pair_results[(i, j)].kind == "epipolar"]
+        for j in (epi if i == focus else epi[:1]):
+            log_candidates(res, rec, stems, i, j, pts)
     log_metrics(res, rec)
     desc = {"focus": stems[focus], "supports": [stems[j] for j in shown_supports(res, focus)],
-            "has_gt": bool(gts)}
+            "has_gt": bool(gts), "has_cameras": bool(res.cameras is not None and res.cameras.n_registered)}
     rec.log(BLUEPRINT_ENTITY, rr.TextDocument(json.dumps(desc)), static=True)
     _at_start(rec)
     rec.log("/log", rr.TextLog(f"logged {len(photos)} photos, {len(res.pair_results)} pairs; "
@@ -136,8 +149,10 @@ def log_images(res, rec, stems) -> None:
 def log_pair(res, rec, stems, i: int, j: int) -> None:
     g = res.pairs[(i, j)]
     base = f"/pairs/{stems[i]}/{stems[j]}"
+    unc = f", epipolar-line uncertainty {g.uncertainty_px:.1f} px" if np.isfinite(g.uncertainty_px) else ""
     rec.log(f"{base}/info", rr.TextDocument(
         f"**{res.photo_set.photos[i].stem} → {res.photo_set.photos[j].stem}**: {g.status}"
+        f" (geometry: {g.source or 'rejected'}{unc})"
         f"{' — ' + g.reason if g.reason else ''}\n\n{g.n_matches} matches, {g.n_inliers} inliers, "
         f"spread {g.spread:.0%}, homography share {g.homography_share:.0%}",
         media_type=rr.MediaType.MARKDOWN), static=True)
@@ -171,17 +186,40 @@ def log_pair(res, rec, stems, i: int, j: int) -> None:
         lines = [seg for seg in (clip_line(l, size_s) for l in sg.bound_a[np.isin(sg.strip, fan0)]) if seg is not None]
         if lines:
             rec.log(f"{base}/sup/epilines", rr.LineStrips2D(lines, radii=0.6, colors=[255, 220, 0]), static=True)
-    mp = res.match_prob(i, j)
-    rec.log(f"{base}/match_prob", rr.DepthImage(np.round(mp * 255).astype(np.uint8), meter=255.0,
-                                                colormap="turbo", depth_range=(0.0, 255.0)), static=True)
+    if r.kind == "peer":
+        return
+    # 1 - P: blue = matched (static), red = no match, the colours of the inspector and of P_dynamic
+    miss = 1.0 - res.match_prob(i, j)
+    rec.log(f"{base}/mismatch", rr.DepthImage(np.round(miss * 255).astype(np.uint8), meter=255.0,
+                                              colormap="turbo", depth_range=(0.0, 255.0)), static=True)
     # where the support holds no candidate (out of its view): "no evidence", neutral in `default`
     rec.log(f"{base}/no_evidence", rr.SegmentationImage((r.evidence < 0.5).astype(np.uint8)), static=True)
     from .output import heat_overlay
-    rec.log(f"{base}/match_overlay", rr.Image(heat_overlay(res.photo_set.photos[i].rgb, mp)).compress(jpeg_quality=80),
-            static=True)
+    rec.log(f"{base}/mismatch_overlay",
+            rr.Image(heat_overlay(res.photo_set.photos[i].rgb, miss)).compress(jpeg_quality=80), static=True)
 
 
-def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float) -> None:
+def log_world(res, rec, stems) -> None:
+    """The reconstruction in 3-D: sparse points and every registered camera with its photo."""
+    cams = res.cameras
+    if cams is None or not cams.n_registered:
+        return
+    rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    if len(cams.points):
+        rec.log("/world/points", rr.Points3D(cams.points, colors=cams.point_rgb, radii=0.02), static=True)
+    for k in np.nonzero(cams.registered)[0]:
+        p = res.photo_set.photos[k]
+        base = f"/world/cameras/{stems[k]}"
+        rec.log(base, rr.Transform3D(translation=cams.C[k], mat3x3=cams.R[k].T), static=True)
+        # our pixel convention puts (0, 0) at the first pixel's centre; Rerun's at its corner
+        K = cams.K[k].copy()
+        K[:2, 2] += 0.5
+        rec.log(f"{base}/image", rr.Pinhole(image_from_camera=K, resolution=[p.size[1], p.size[0]],
+                                            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.5), static=True)
+        rec.log(f"{base}/image", rr.Image(p.rgb).compress(jpeg_quality=70), static=True)
+
+
+def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float, focus: int | None = None) -> None:
     rec.log("/dynamic", rr.AnnotationContext([(0, "static", (0, 0, 0, 0)), (1, "dynamic", (255, 255, 255, 140)),
                                               (2, "don't care", (80, 80, 255, 140))]), static=True)
     for i, (p, s) in enumerate(zip(res.photo_set.photos, stems)):
@@ -204,6 +242,14 @@ def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float) -> N
         if p.stem in scores:
             rec.log(f"{base}/jaccard", rr.TextDocument(f"Jaccard at {threshold:.2f}: {scores[p.stem]:.3f}"),
                     static=True)
+        f = res.fused(i, res.supports[i]) if res.params.sweep.enabled else None
+        if f is not None:
+            pair = next(res.pair_results[(i, j)].sweep for j in res.supports[i] if res.is_swept(i, j))
+            inv = np.where(f.plane >= 0, pair.inv_depths[np.maximum(f.plane, 0)], 0.0)
+            rec.log(f"{base}/depth", rr.DepthImage(np.round(inv / max(inv.max(), 1e-9) * 255).astype(np.uint8),
+                                                   meter=255.0, colormap="viridis"), static=True)
+        if res.params.sweep.enabled and i != focus:
+            continue
         # the paper's Fig. 5: the map after 1, 2, ... k supports, made as the final map is
         for k, sweep in enumerate(res.sweep(i), start=1):
             # rows carry both timelines: on "patch" the sweep shows its last state, and vice versa
@@ -277,10 +323,12 @@ def make_blueprint(desc: dict) -> rrb.Blueprint:
                                      contents=[f"/images/{s0}", f"/pairs/{f}/{s0}/sup/**"]))
     top.append(rrb.Spatial2DView(name=f"P_dynamic {f}", origin=f"/dynamic/{f}",
                                  contents=[f"/dynamic/{f}/overlay"]))
-    maps = [rrb.Spatial2DView(name=f"P(x|{s})", origin=f"/pairs/{f}/{s}", contents=[f"/pairs/{f}/{s}/match_overlay"])
-            for s in sups[:6]]
+    maps = [rrb.Spatial2DView(name=f"1 - P(x|{s})", origin=f"/pairs/{f}/{s}",
+                              contents=[f"/pairs/{f}/{s}/mismatch_overlay"]) for s in sups[:6]]
     bottom = [rrb.Grid(*maps, grid_columns=3, name="per-support maps")] if maps else []
     bottom.append(rrb.Spatial2DView(name="support sweep (Fig. 5)", origin=f"/dynamic/{f}/sweep"))
+    if desc.get("has_cameras"):
+        bottom.append(rrb.Spatial3DView(name="cameras and points", origin="/world"))
     bottom.append(rrb.Vertical(rrb.TextLogView(origin="/log", name="log"),
                                rrb.TextDocumentView(origin=f"/pairs/{f}/{s0}/info" if s0 else "/params",
                                                     name="pair")))

@@ -320,9 +320,9 @@ def set_cameras(photo_set: PhotoSet, params: Params, pairs: dict, keypoints: lis
     photo and on the geometry parameters. pairs: PairGeometry per unordered pair (i < j)."""
     photos = photo_set.photos
     k = cache_mod.key("cameras", *[p.key for p in photos], params.geometry_key_material())
-    data = cache.get("cameras", k)
-    if data is not None:
-        return cache_mod.from_bytes(SetCameras, data)
+    cams = cache.load("cameras", k, lambda d: cache_mod.from_bytes(SetCameras, d))
+    if cams is not None:
+        return cams
     prior = np.array([p.focal_prior_px if p.focal_prior_px else np.nan for p in photos], float)
     cams = reconstruct(keypoints, [p.size for p in photos], pairs, [p.rgb for p in photos], params.geometry, prior)
     cache.put("cameras", k, cache_mod.to_bytes(cams))
@@ -370,17 +370,15 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         pairs: dict[tuple[int, int], PairGeometry] = {}
         todo = []
         for ij, k in gkey.items():
-            data = cache.get("geometry", k)
-            if data is not None:
-                pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
+            g = cache.load("geometry", k, lambda d: cache_mod.from_bytes(PairGeometry, d))
+            if g is not None:
+                pairs[ij] = g
             else:
                 todo.append(ij)
         kkey = [cache_mod.key("keypoints", p.key, params.geometry_key_material()) for p in photos]
         keypoints: list[np.ndarray | None] = [None] * n
         for i in range(n):
-            data = cache.get("keypoints", kkey[i])
-            if data is not None:
-                keypoints[i] = np.load(io.BytesIO(data))
+            keypoints[i] = cache.load("keypoints", kkey[i], lambda d: np.load(io.BytesIO(d)))
         if todo or any(k is None for k in keypoints):
             need = sorted({i for ij in todo for i in ij} | {i for i in range(n) if keypoints[i] is None})
             feats: dict[int, Features] = {}
@@ -460,9 +458,9 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         results: dict[tuple[int, int], PairResult | PeerPair] = {}
         todo = []
         for ij in ordered:
-            data = cache.get("pair", pkey[ij])
-            if data is not None:
-                results[ij] = load(ij, data)
+            r = cache.load("pair", pkey[ij], lambda d: load(ij, d))
+            if r is not None:
+                results[ij] = r
                 if on_pair:
                     on_pair(ij, results[ij])
             else:

@@ -47,7 +47,7 @@ def test_entity_tree(recording):
     s0 = desc["supports"][0]
     for p in res.photo_set.photos:
         assert f"/images/{part(p.stem)}" in paths
-    for e in (f"/pairs/{f}/{s0}/info", f"/pairs/{f}/{s0}/match_prob", f"/pairs/{f}/{s0}/ref/epilines",
+    for e in (f"/pairs/{f}/{s0}/info", f"/pairs/{f}/{s0}/mismatch", f"/pairs/{f}/{s0}/ref/epilines",
               f"/pairs/{f}/{s0}/sup/epilines", f"/pairs/{f}/{s0}/sup/candidates", f"/pairs/{f}/{s0}/no_evidence", f"/pairs/{f}/{s0}/ref/patches",
               f"/dynamic/{f}/prob", f"/dynamic/{f}/mask", f"/dynamic/{f}/sweep", "/params", "/meta/blueprint"):
         assert e in paths, e
@@ -63,11 +63,13 @@ def test_logged_aggregate_equals_the_pipeline(recording):
 
 
 def test_match_prob_and_sweep(recording):
+    """P(x|I_s) is logged as 1 - P, so that blue (low) means matched as in the inspector."""
     res, desc, store, _ = recording
     i = choose_focus(res)
     j = res.supports[i][0]
-    (ch,) = _chunks(store, f"/pairs/{desc['focus']}/{part(res.photo_set.photos[j].stem)}/match_prob")
-    assert np.abs(_image(ch.to_record_batch(), "DepthImage") / 255.0 - res.match_prob(i, j)).max() <= 0.5 / 255 + 1e-6
+    (ch,) = _chunks(store, f"/pairs/{desc['focus']}/{part(res.photo_set.photos[j].stem)}/mismatch")
+    logged = _image(ch.to_record_batch(), "DepthImage") / 255.0
+    assert np.abs(logged - (1.0 - res.match_prob(i, j))).max() <= 0.5 / 255 + 1e-6
     rows = []
     for ch in _chunks(store, f"/dynamic/{desc['focus']}/sweep"):
         rb = ch.to_record_batch()
@@ -105,3 +107,30 @@ def test_fan_is_one_batch_and_blueprint_is_stored(recording):
     (bp,) = _chunks(store, "/meta/blueprint")
     assert json.loads(bp.to_record_batch().column("TextDocument:text")[0].as_py()[0]) == desc
     assert path.stat().st_size < 150 * 2**20
+
+
+def test_every_reference_has_candidates(recording):
+    """The recording explains every reference, not only the first: candidates for at least one
+    epipolar pair of each photo that has one."""
+    res, desc, store, _ = recording
+    paths = set(map(str, store.schema().entity_paths()))
+    for i, p in enumerate(res.photo_set.photos):
+        epi = [j for j in res.supports[i] if res.pair_results[(i, j)].kind == "epipolar"]
+        if res.dynamic[i] is None or not epi:
+            continue
+        assert any(f"/pairs/{part(p.stem)}/{part(res.photo_set.photos[j].stem)}/sup/candidates" in paths
+                   for j in epi), p.stem
+    assert res.pair_results[(choose_focus(res), [j for j in res.supports[choose_focus(res)]][0])].kind in (
+        "epipolar", "homography")
+    first = desc["supports"][0]
+    k = [part(q.stem) for q in res.photo_set.photos].index(first)
+    assert res.pair_results[(choose_focus(res), k)].kind == "epipolar"      # the first screen has lines
+
+
+def test_cameras_in_3d(recording):
+    res, desc, store, _ = recording
+    paths = set(map(str, store.schema().entity_paths()))
+    assert desc["has_cameras"]
+    assert "/world/points" in paths
+    for k in np.nonzero(res.cameras.registered)[0]:
+        assert f"/world/cameras/{part(res.photo_set.photos[k].stem)}/image" in paths

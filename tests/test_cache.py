@@ -1,0 +1,84 @@
+"""The cache heals: bad entries are reported, deleted and recomputed; a size cap evicts the least
+recently used entries; `crowdcam cache info|clear`."""
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import ROOT, SAMPLE_SETS
+from pipeline.cache import PairCache, pack, unpack
+
+
+def test_entries_carry_a_checked_header(tmp_path):
+    c = PairCache(tmp_path)
+    c.put("pair", "ab" * 12, b"payload")
+    raw = c.path("pair", "ab" * 12).read_bytes()
+    assert raw != b"payload" and unpack(raw) == b"payload"
+    assert c.get("pair", "ab" * 12) == b"payload"
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated", "flipped", "foreign"])
+def test_a_bad_entry_is_reported_deleted_and_missed(tmp_path, damage):
+    warnings = []
+    c = PairCache(tmp_path, warn=warnings.append)
+    key = "cd" * 12
+    c.put("geometry", key, b"x" * 1000)
+    p = c.path("geometry", key)
+    raw = p.read_bytes()
+    p.write_bytes({"empty": b"", "truncated": raw[:-10], "flipped": raw[:-1] + bytes([raw[-1] ^ 1]),
+                   "foreign": b"PK\x03\x04" + raw[4:]}[damage])
+    assert c.get("geometry", key) is None
+    assert not p.exists() and c.healed == 1
+    assert len(warnings) == 1 and str(p) in warnings[0] and "recomputed" in warnings[0]
+
+
+def test_an_entry_that_does_not_decode_is_healed_too(tmp_path):
+    warnings = []
+    c = PairCache(tmp_path, warn=warnings.append)
+    c.put("pair", "ef" * 12, b"not an npz")
+    assert c.load("pair", "ef" * 12, lambda d: __import__("numpy").load(__import__("io").BytesIO(d))) is None
+    assert not c.path("pair", "ef" * 12).exists() and warnings
+
+
+def test_size_cap_evicts_least_recently_used(tmp_path):
+    c = PairCache(tmp_path, max_bytes=10_000)
+    keys = [f"{k:02d}" * 12 for k in range(6)]
+    for k in keys[:4]:
+        c.put("pair", k, os.urandom(2000))
+    old = time.time() - 100
+    for n, k in enumerate(keys[:4]):                  # ages: keys[0] oldest
+        os.utime(c.path("pair", k), (old + n, old + n))
+    c.get("pair", keys[0])                            # used now: no longer the oldest
+    c.put("pair", keys[4], os.urandom(2000))
+    c.put("pair", keys[5], os.urandom(2000))          # over 10 kB: evict down to 9 kB
+    left = {p.stem for p, _, _ in c.entries()}
+    assert keys[0] in left and keys[5] in left
+    assert keys[1] not in left
+    assert c.size() <= 10_000
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "crowdcam", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+
+
+def test_detect_heals_a_truncated_cache_entry(tmp_path):
+    """An empty geometry entry (a crash or a full disk) used to end every later run in a traceback."""
+    cache = tmp_path / "cache"
+    args = ["detect", SAMPLE_SETS / "tabletop_ball", "--out", tmp_path / "out", "--max-side", "200", "--preset",
+            "paper", "--quiet", "--cache-dir", cache]
+    assert run_cli(*args).returncode == 0
+    geo = sorted((cache / "geometry").rglob("*.npz"))
+    assert geo
+    geo[0].write_bytes(b"")
+    r = run_cli(*args)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr and "bad cache entry" in r.stderr and str(geo[0]) in r.stderr
+    assert geo[0].stat().st_size > 0                       # recomputed and written again
+    r = run_cli("cache", "info", "--cache-dir", cache)
+    assert r.returncode == 0 and "geometry" in r.stdout and "pair" in r.stdout
+    r = run_cli("cache", "clear", "--cache-dir", cache)
+    assert r.returncode == 0 and not list(cache.rglob("*.npz"))
