@@ -5,7 +5,8 @@ depth-consistent cue, pipeline/run.py). A sum of log-odds from cues that are not
 not a probability yet (EVIDENCE_NOTES point 6). We map it by P_dynamic = 1 / (1 + e^(s (z - z0))):
 
 - z0 is the threshold on z that maximises the mean Jaccard over the calibration sets (§4.2), so
-  that the best threshold on P_dynamic sits at 0.5;
+  that the best threshold on P_dynamic sits at 0.5, but never above 0: z = 0 is "no evidence"
+  (no support sees the point), and no evidence must not read as motion (P_dynamic <= 0.5);
 - s is the slope of a logistic regression of "moving" on z, so that P_dynamic changes as fast as
   the frequency of movers does around it.
 
@@ -72,7 +73,8 @@ def fit(samples) -> dict:
             by_set.setdefault(name, []).append(jaccard_curve(-z, gt, -grid[::-1])[::-1])
     curves = np.array([np.mean(c, axis=0) for c in by_set.values()])
     mean = curves.mean(axis=0)
-    z0 = float(grid[int(np.argmax(mean))])
+    best_z = float(grid[int(np.argmax(mean))])
+    z0 = min(best_z, 0.0)
     zs = np.concatenate([z[care][::5] for z, _, care, _ in samples]).astype(np.float64)
     ys = np.concatenate([m[care][::5] for _, m, care, _ in samples]).astype(np.float64)
     X = np.column_stack([np.ones_like(zs), zs])
@@ -88,6 +90,7 @@ def fit(samples) -> dict:
     rel = [{"p_from": float(bins[k]), "p_to": float(bins[k + 1]), "pixels": int((idx == k).sum()),
             "moving_share": float(ys[idx == k].mean()) if (idx == k).any() else None} for k in range(10)]
     return {"calib_offset": round(z0, 3), "calib_scale": round(s, 3), "best_mean_jaccard": float(mean.max()),
+            "best_z": best_z, "mean_jaccard_at_offset": float(mean[int(np.argmin(np.abs(grid - z0)))]),
             "sets": sorted(by_set), "reliability": rel}
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 SAMPLE_SETS = Path(__file__).resolve().parents[1] / "sample_sets"
 EXIT_USAGE = 2
+EXIT_FAULT = 3          # the machine failed the run (a worker died twice, the disk is full)
 
 
 class CliError(Exception):
@@ -528,11 +529,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     from pipeline.loading import InputError
+    from pipeline.run import WorkerDied
     try:
         return args.fn(args)
     except (InputError, CliError) as e:
         print(f"crowdcam: error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    except WorkerDied as e:
+        print(f"crowdcam: error: {e}", file=sys.stderr)
+        return EXIT_FAULT
+    except OSError as e:                 # disk full, permissions: the output staging is already removed
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"crowdcam: error: {where}{e.strerror or e}", file=sys.stderr)
+        return EXIT_FAULT
     except KeyboardInterrupt:
         print("crowdcam: interrupted", file=sys.stderr)
         return 130

@@ -168,7 +168,7 @@ PRESETS: dict[str, Params] = {
         geometry=GeometryParams(homography_pairs=True, triplet_check=True, reconstruction=True),
         patches=PatchParams(homography_reach_frac=0.1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
-        aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, calib_scale=1.23, calib_offset=0.2),
+        aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, calib_scale=1.23, calib_offset=0.0),
         sweep=SweepParams(enabled=True, blur=1.0),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.

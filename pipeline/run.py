@@ -198,8 +198,12 @@ _W: dict = {}
 
 
 def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
+    import signal
+
     import cv2
     cv2.setNumThreads(1)
+    if mp.parent_process() is not None:        # a pool worker: Ctrl-C is the main process's to handle
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     _W["rgbs"], _W["params"], _W["channels"] = rgbs, params, {}
 
 
@@ -221,9 +225,34 @@ def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[in
     return (i, j), cache_mod.to_bytes(g)
 
 
+def _fault_injection(i: int, j: int) -> None:
+    """Deterministic faults for the tests (tests/test_faults.py), off unless CROWDCAM_FAULT is set:
+    "kill:I,J" kills the worker on pair (I, J) (once, if CROWDCAM_FAULT_ONCE names a marker file
+    that does not exist yet), "hang:I,J" makes it wait forever after touching CROWDCAM_FAULT_ONCE."""
+    spec = os.environ.get("CROWDCAM_FAULT")
+    if not spec:
+        return
+    what, _, ij = spec.partition(":")
+    if ij != f"{i},{j}":
+        return
+    marker = os.environ.get("CROWDCAM_FAULT_ONCE")
+    if what == "kill":
+        if marker:
+            if os.path.exists(marker):
+                return
+            open(marker, "w").close()
+        os.kill(os.getpid(), 9)
+    if what == "hang":
+        if marker:
+            open(marker, "w").close()
+        while True:
+            time.sleep(1)
+
+
 def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None) -> tuple[tuple[int, int], bytes]:
     """One ordered pair: strips (epipolar pair) or aligned patches (homography pair), and with
     sweep_args = (cam_i, cam_j, inverse depths) also its cost volume over the depth planes."""
+    _fault_injection(i, j)
     p = _W["params"]
     rgb_i, rgb_j = _W["rgbs"][i], _W["rgbs"][j]
     if p.geometry.peer_homography:
@@ -240,8 +269,18 @@ def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None)
     return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
 
 
+class WorkerDied(RuntimeError):
+    """A worker process died twice (out-of-memory killer, a kill) while computing the named task."""
+
+
 class _Runner:
-    """Runs tasks in a spawn-based process pool, or inline for one worker."""
+    """Runs tasks in a spawn-based process pool, or inline for one worker.
+
+    A worker that dies (BrokenProcessPool) takes the pool with it: the pool is rebuilt and the
+    unfinished tasks are retried once; a task unfinished at a second death raises WorkerDied.
+    Results delivered before (and cached by on_done) are kept. On any other exception, Ctrl-C
+    included, the workers are terminated at once (they ignore SIGINT themselves), so a stop takes
+    no longer than the process exits."""
 
     def __init__(self, rgbs: list[np.ndarray], params: Params, workers: int):
         self.workers = workers
@@ -250,29 +289,56 @@ class _Runner:
         if workers <= 1:
             _init_worker(rgbs, params)
 
-    def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None]) -> None:
+    def _ensure_pool(self) -> None:
+        if self.pool is None:
+            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+                os.environ.setdefault(var, "1")
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
+                                            initializer=_init_worker, initargs=self.args)
+
+    def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
+            label: Callable[[tuple], str] = lambda a: str(a[:2])) -> None:
         if not arg_list:
             return
         if self.workers <= 1:
             for a in arg_list:
                 on_done(fn(*a))
             return
-        if self.pool is None:
-            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-                os.environ.setdefault(var, "1")
-            self.pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
-                                            initializer=_init_worker, initargs=self.args)
-        futures = [self.pool.submit(fn, *a) for a in arg_list]
-        try:
-            for fut in as_completed(futures):
-                on_done(fut.result())
-        except BaseException:
-            for fut in futures:
-                fut.cancel()
-            raise
+        from concurrent.futures.process import BrokenProcessPool
+        pending = dict(enumerate(arg_list))
+        deaths: dict[int, int] = {}
+        while pending:
+            self._ensure_pool()
+            futures: dict = {}
+            try:
+                for k, a in pending.items():
+                    futures[self.pool.submit(fn, *a)] = k
+                for fut in as_completed(futures):
+                    result = fut.result()
+                    del pending[futures[fut]]
+                    on_done(result)
+            except BrokenProcessPool:
+                self.close(kill=True)
+                for k in pending:
+                    deaths[k] = deaths.get(k, 0) + 1
+                twice = [k for k in pending if deaths[k] > 1]
+                if twice:
+                    raise WorkerDied(f"a worker process died twice while computing {label(pending[twice[0]])} "
+                                     "(out of memory?); the finished pairs are cached, a re-run resumes") from None
+            except BaseException:
+                for fut in futures:
+                    fut.cancel()
+                self.close(kill=True)
+                raise
 
-    def close(self) -> None:
+    def close(self, kill: bool = False) -> None:
         if self.pool is not None:
+            if kill:
+                for proc in list(getattr(self.pool, "_processes", {}).values()):
+                    try:
+                        proc.terminate()
+                    except Exception:
+                        pass
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.pool = None
 
@@ -393,7 +459,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 cache.put("keypoints", kkey[res[0]], buf.getvalue())
                 done[0] += 1
                 progress("features", done[0], len(need))
-            runner.map(_task_features, [(i,) for i in need], got_features)
+            runner.map(_task_features, [(i,) for i in need], got_features, label=lambda a: f"the features of {photos[a[0]].path}")
             gdone = [0]
 
             def got_geometry(res):
@@ -403,7 +469,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
                 gdone[0] += 1
                 progress("geometry", gdone[0], len(todo))
-            runner.map(_task_geometry, [(i, j, feats[i], feats[j]) for i, j in todo], got_geometry)
+            runner.map(_task_geometry, [(i, j, feats[i], feats[j]) for i, j in todo], got_geometry,
+                       label=lambda a: f"the geometry of {photos[a[0]].name} and {photos[a[1]].name}")
         cameras = None
         if params.geometry.reconstruction:
             cameras = set_cameras(photo_set, params, pairs, keypoints, cache)
@@ -478,7 +545,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
         runner.map(_task_pair, [(i, j, pairs[(i, j)], (cam(i), cam(j), inv[i]) if (i, j) in swept else None)
-                                for i, j in todo], got_pair)
+                                for i, j in todo], got_pair,
+                   label=lambda a: f"the pair {photos[a[0]].name} -> {photos[a[1]].name}")
         timings["pairs_s"] = time.perf_counter() - t1
     finally:
         runner.close()

@@ -1,0 +1,103 @@
+"""Runs that survive faults: a worker killed once is replaced and its pair retried; killed again,
+a one-line error naming the pair and exit 3, the finished pairs cached; Ctrl-C stops cleanly;
+a full disk while writing outputs leaves nothing half-written. Faults are injected
+deterministically (run._fault_injection); the tests wait on marker files, never on time."""
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from conftest import ROOT, SAMPLE_SETS
+
+SET = SAMPLE_SETS / "tabletop_ball"
+
+
+def detect(tmp_path, env_extra, *extra, cache=None, out="out"):
+    env = dict(os.environ, **env_extra)
+    cmd = [sys.executable, "-m", "crowdcam", "detect", str(SET), "--out", str(tmp_path / out), "--max-side", "160",
+           "--preset", "paper", "--workers", "2", "--quiet", "--cache-dir", str(cache or tmp_path / "cache"), *extra]
+    return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+import pytest
+
+
+@pytest.fixture(scope="module")
+def order(tmp_path_factory):
+    """The admitted ordered pairs in the order the run computes them (one plain run)."""
+    return _order(tmp_path_factory.mktemp("probe"))
+
+
+def _order(tmp_path):
+    """From a plain run's summary (run.detect_set computes the reference with most supports first)."""
+    import json
+    p = detect(tmp_path, {}, cache=tmp_path / "probe-cache", out="probe")
+    assert p.wait(timeout=600) == 0, p.stderr.read()
+    summ = json.loads((tmp_path / "probe" / "summary.json").read_text())
+    stems = [im["stem"] for im in summ["images"]]
+    sups = [[stems.index(s) for s in im["supports"]] for im in summ["images"]]
+    first = max(range(len(sups)), key=lambda i: (len(sups[i]), -i))
+    order = sorted(((i, j) for i, s in enumerate(sups) for j in s), key=lambda ij: ij[0] != first)
+    return order
+
+
+def test_a_worker_killed_once_is_replaced(tmp_path, order):
+    i, j = order[0]
+    p = detect(tmp_path, {"CROWDCAM_FAULT": f"kill:{i},{j}", "CROWDCAM_FAULT_ONCE": str(tmp_path / "killed")})
+    assert p.wait(timeout=600) == 0, p.stderr.read()
+    assert (tmp_path / "killed").exists()                 # the fault did happen
+    assert (tmp_path / "out" / "summary.json").exists()
+
+
+def test_a_worker_killed_twice_ends_in_one_line_and_exit_3(tmp_path, order):
+    i, j = order[-1]
+    p = detect(tmp_path, {"CROWDCAM_FAULT": f"kill:{i},{j}"})
+    code = p.wait(timeout=600)
+    err = p.stderr.read()
+    assert code == 3, err
+    assert err.count("\n") == 1 and "died twice" in err and "->" in err and "Traceback" not in err
+    assert list((tmp_path / "cache" / "pair").rglob("*.npz"))     # finished pairs stay cached
+    assert not (tmp_path / "out").exists()
+    p = detect(tmp_path, {})                                         # a re-run resumes and finishes
+    assert p.wait(timeout=600) == 0
+
+
+def test_ctrl_c_stops_within_two_seconds_and_leaves_nothing(tmp_path, order):
+    i, j = order[0]
+    marker = tmp_path / "hanging"
+    p = detect(tmp_path, {"CROWDCAM_FAULT": f"hang:{i},{j}", "CROWDCAM_FAULT_ONCE": str(marker)})
+    t0 = time.time()
+    while not marker.exists():                           # the gate: a worker is inside the pair
+        assert p.poll() is None, p.stderr.read()
+        assert time.time() - t0 < 600
+        time.sleep(0.05)
+    t = time.time()
+    p.send_signal(signal.SIGINT)
+    assert p.wait(timeout=10) == 130
+    assert time.time() - t < 2.0
+    assert "Traceback" not in p.stderr.read()
+    left = subprocess.run(["pgrep", "-f", f"{tmp_path}"], capture_output=True, text=True).stdout.strip()
+    assert left == ""                                    # no orphan worker
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+def test_a_full_disk_while_writing_outputs(tmp_path, monkeypatch):
+    from crowdcam import cli
+    from pipeline import output
+
+    calls = {"n": 0}
+    real = output._imwrite
+
+    def full(path, img, params=None):
+        calls["n"] += 1
+        if calls["n"] > 2:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        real(path, img, params)
+    monkeypatch.setattr(output, "_imwrite", full)
+    code = cli.main(["detect", str(SET), "--out", str(tmp_path / "out"), "--max-side", "160", "--preset", "paper",
+                     "--workers", "1", "--quiet", "--cache-dir", str(tmp_path / "cache")])
+    assert code == 3
+    assert not (tmp_path / "out").exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
