@@ -16,6 +16,13 @@ import time
 from pathlib import Path
 
 SAMPLE_SETS = Path(__file__).resolve().parents[1] / "sample_sets"
+def one_line(msg: str) -> str:
+    """A message on one printable line, whatever the file names in it: newlines shown as \\n,
+    bytes that are not UTF-8 (kept by Python as surrogates) shown as \\xNN."""
+    msg = str(msg).replace("\r", "\\r").replace("\n", "\\n")
+    return msg.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 EXIT_USAGE = 2
 EXIT_FAULT = 3          # the machine failed the run (a worker died twice, the disk is full)
 
@@ -55,12 +62,12 @@ class Reporter:
 
     def warn(self, msg: str) -> None:
         self.close()
-        print(f"crowdcam: warning: {msg}", file=sys.stderr)
+        print(f"crowdcam: warning: {one_line(msg)}", file=sys.stderr)
 
     def info(self, msg: str) -> None:
         if not self.quiet:
             self.close()
-            print(msg, file=sys.stderr)
+            print(one_line(msg), file=sys.stderr)
 
 
 def _params(args):
@@ -533,23 +540,20 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.fn(args)
     except (InputError, CliError) as e:
-        print(f"crowdcam: error: {e}", file=sys.stderr)
+        print(f"crowdcam: error: {one_line(e)}", file=sys.stderr)
         return EXIT_USAGE
     except WorkerDied as e:
-        print(f"crowdcam: error: {e}", file=sys.stderr)
+        print(f"crowdcam: error: {one_line(e)}", file=sys.stderr)
         return EXIT_FAULT
     except OSError as e:                 # disk full, permissions: the output staging is already removed
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-        print(f"crowdcam: error: {where}{e.strerror or e}", file=sys.stderr)
+        print(f"crowdcam: error: {one_line(where + str(e.strerror or e))}", file=sys.stderr)
         return EXIT_FAULT
     except KeyboardInterrupt:
         print("crowdcam: interrupted", file=sys.stderr)
         return 130
     except MemoryError:
         print("crowdcam: error: out of memory (try a smaller --max-side)", file=sys.stderr)
-        return 1
-    except OSError as e:
-        print(f"crowdcam: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
         return 1
 
 

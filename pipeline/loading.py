@@ -18,6 +18,8 @@ import numpy as np
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp"}
 MAX_PIXELS = 120_000_000          # refuse larger photos (a 6000x4000 phone photo is 24 MP)
 MAX_FILE_BYTES = 400 * 1024 * 1024
+MAX_PHOTOS = 200                  # a set beyond this is refused with a message (pairs grow with n^2)
+MAX_LISTED_SKIPS = 10             # skipped files named one by one; beyond, one line counts the rest
 
 
 class InputError(Exception):
@@ -83,6 +85,9 @@ def decode_photo(path: Path) -> np.ndarray:
         raise InputError(f"{path}: empty file")
     if size > MAX_FILE_BYTES:
         raise InputError(f"{path}: file too large ({size / 2**20:.0f} MB)")
+    w_h = _declared_size(path)
+    if w_h is not None and w_h[0] * w_h[1] > MAX_PIXELS:      # checked before decoding: no bomb goes off
+        raise InputError(f"{path}: image too large ({w_h[0]}x{w_h[1]} pixels; at most {MAX_PIXELS // 10**6} MP)")
     try:
         data = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:
@@ -100,6 +105,22 @@ def decode_photo(path: Path) -> np.ndarray:
     if img.shape[0] < 32 or img.shape[1] < 32:
         raise InputError(f"{path}: image too small ({img.shape[1]}x{img.shape[0]} pixels)")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _declared_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) the file's header declares, read without decoding the pixels (PIL), or None
+    when PIL cannot tell (OpenCV may still read the file)."""
+    try:
+        import warnings
+
+        from PIL import Image
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")           # PIL's own DecompressionBombWarning: we decide here
+            Image.MAX_IMAGE_PIXELS = None
+            with Image.open(path) as im:
+                return int(im.size[0]), int(im.size[1])
+    except Exception:
+        return None
 
 
 def resize_to_max_side(rgb: np.ndarray, max_side: int) -> tuple[np.ndarray, float]:
@@ -188,19 +209,35 @@ def load_set(root: Path, max_side: int = 640, warn=None, gt_dir: Path | None = N
         _warn(f"{p}: skipped (not an image file type)")
     if not paths:
         raise InputError(f"{image_dir}: no images found (looked for {', '.join(sorted(IMAGE_SUFFIXES))})")
+    if len(paths) > MAX_PHOTOS:
+        raise InputError(f"{image_dir}: {len(paths)} image files; a set may hold at most {MAX_PHOTOS} photos "
+                         "(split it, or pick the photos of one moment)")
     photos: list[Photo] = []
     stems: set[str] = set()
+    contents: dict[str, str] = {}
+    skipped = [0]
+
+    def skip(msg: str) -> None:
+        skipped[0] += 1
+        if skipped[0] <= MAX_LISTED_SKIPS:
+            _warn(msg)
     for p in paths:
         try:
             ph = load_photo(p, max_side, _warn)
         except InputError as e:
-            _warn(f"{e} -- skipped")
+            skip(f"{e} -- skipped")
             continue
         if ph.stem in stems:
-            _warn(f"{p}: skipped (another photo has the same name stem {ph.stem!r})")
+            skip(f"{p}: skipped (another photo has the same name stem {ph.stem!r})")
+            continue
+        if ph.key in contents:               # the same file twice says nothing about motion
+            skip(f"{p}: skipped (the same photo as {contents[ph.key]})")
             continue
         stems.add(ph.stem)
+        contents[ph.key] = p.name
         photos.append(ph)
+    if skipped[0] > MAX_LISTED_SKIPS:
+        _warn(f"{image_dir}: {skipped[0] - MAX_LISTED_SKIPS} more files skipped (not listed)")
     if len(photos) < 2:
         raise InputError(f"{image_dir}: fewer than two usable images ({len(photos)} of {len(paths)} loaded)")
     if gt_dir is not None:

@@ -526,17 +526,19 @@ def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[n
             seen = cams.points[common] if len(common) else cams.points[cams.obs[cams.obs[:, 1] == i, 0]]
             depth = float(np.median(cams.depth(i, seen))) if len(seen) else float("nan")
             overlap = min(cams.view_overlap(i, j, sizes[j]), cams.view_overlap(j, i, sizes[i]))
+            why = None
             if len(common) < p.recon_min_covisible and overlap < p.recon_min_overlap:
-                new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc,
-                                          reason=f"the cameras see little of the same scene ({len(common)} common "
-                                                 f"points, {overlap:.0%} of the scene in view of both)")
+                why = (f"the cameras see little of the same scene ({len(common)} common points, {overlap:.0%} of "
+                       "the scene in view of both)")
             elif not baseline > p.recon_min_baseline * depth:
-                new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc,
-                                          reason=f"no baseline: the cameras are {baseline / depth:.1%} of the scene "
-                                                 "depth apart, and no homography explains the pair")
+                why = (f"no baseline: the cameras are {baseline / depth:.1%} of the scene depth apart, and no "
+                       "homography explains the pair")
             elif unc > p.recon_max_uncertainty_frac * max(sizes[i]):
-                new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc,
-                                          reason=f"epipolar lines too uncertain ({unc:.1f} px)")
+                why = f"epipolar lines too uncertain ({unc:.1f} px)"
+            if why is not None:
+                if g.ok:              # the pair's own two-view geometry passed its tests: it stays
+                    continue
+                new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc, reason=why)
             else:
                 # the matches that the reconstruction confirmed (track observations in both photos)
                 oi = cams.obs[np.isin(cams.obs[:, 0], common) & (cams.obs[:, 1] == i)]

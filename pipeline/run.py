@@ -363,11 +363,19 @@ def assemble(photo_set: PhotoSet, params: Params, pairs: dict, supports: list[li
                      warnings or [], keypoints=kps, cameras=cameras)
 
 
-def _sweepable(ij: tuple[int, int], cameras: SetCameras | None, params: Params) -> bool:
-    """Both photos have cameras from the set's reconstruction and the preset sweeps depths."""
+def _sweepable(ij: tuple[int, int], g: PairGeometry, cameras: SetCameras | None, params: Params,
+               size: tuple[int, int]) -> bool:
+    """The preset sweeps depths and the pair's geometry comes from the set's cameras (a
+    reconstruction pair, or a homography pair of two registered photos whose lines are certain)."""
     i, j = ij
-    return (params.sweep.enabled and cameras is not None and bool(cameras.registered[i])
-            and bool(cameras.registered[j]) and np.all(np.isfinite(cameras.depth_range[i])))
+    if not (params.sweep.enabled and cameras is not None and cameras.registered[i] and cameras.registered[j]
+            and np.all(np.isfinite(cameras.depth_range[i]))):
+        return False
+    if g.source == "reconstruction":
+        return True
+    unc = cameras.pair_unc[i, j]
+    return g.source == "homography" and bool(np.isfinite(unc)) and \
+        unc <= params.geometry.recon_max_uncertainty_frac * max(size)
 
 
 def _digest_arrays(*arrays) -> str:
@@ -504,7 +512,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         t1 = time.perf_counter()
         refs = list(range(n)) if only_refs is None else sorted(set(only_refs))
         ordered = sorted(((i, j) for i in refs for j in supports[i]), key=lambda ij: ij[0] != first)
-        swept = {ij for ij in ordered if _sweepable(ij, cameras, params)}
+        swept = {ij for ij in ordered if _sweepable(ij, pairs[ij], cameras, params, photos[ij[0]].size)}
         cam = (lambda k: (cameras.K[k], cameras.R[k], cameras.C[k])) if cameras is not None else None
         inv = {i: inverse_depths((cameras.depth_range[i][0], np.inf), params.sweep.n_planes)
                for i in {i for i, _ in swept}}
