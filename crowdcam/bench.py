@@ -50,7 +50,7 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q)
             sc = score_set({k: v for k, v in probs.items() if k in gts}, gts)
             row.update(jaccard_opt_image=sc.mean_opt_image, jaccard_opt_image_std=sc.std_opt_image,
                        jaccard_opt_set=sc.mean_opt_set, jaccard_opt_set_std=sc.std_opt_set,
-                       has_motion=sc.n_with_motion > 0)
+                       best_threshold=sc.set_threshold, has_motion=sc.n_with_motion > 0)
         row["static_fp_rate"] = static_false_positive_rate(probs, gts or None, 0.5)
         row["peak_mb_main"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         row["peak_mb_worker"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
@@ -84,8 +84,8 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
 
     ctx = mp.get_context("spawn")
     rows = []
-    head = (f"{'set':<20} {'preset':<8} {'imgs':>4} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'warm s':>7} "
-            f"{'peak MB':>9} {'J img':>11} {'J set':>11} {'static>0.5':>10} {'F <2px/p90>10/med':>17}")
+    head = (f"{'set':<20} {'preset':<15} {'imgs':>4} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'warm s':>7} "
+            f"{'peak MB':>9} {'J img':>11} {'J set':>11} {'thr':>5} {'static>0.5':>10} {'F <2px/p90>10/med':>17}")
     print(head)
     for s in sets:
         for preset in presets:
@@ -96,14 +96,15 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
             p.join()
             rows.append(row)
             if "error" in row:
-                print(f"{row['set']:<20} {preset:<8} error: {row['error']}")
+                print(f"{row['set']:<20} {preset:<15} error: {row['error']}")
                 continue
             ji = (f"{row['jaccard_opt_image']:.2f}±{row['jaccard_opt_image_std']:.2f}"
                   if row.get("has_motion") else "-")
             js = f"{row['jaccard_opt_set']:.2f}±{row['jaccard_opt_set_std']:.2f}" if row.get("has_motion") else "-"
-            print(f"{row['set']:<20} {preset:<8} {row['images']:>4} {row['ordered_pairs']:>5} {row['cold_s']:>7.1f} "
+            thr = f"{row['best_threshold']:.2f}" if row.get("has_motion") else "-"
+            print(f"{row['set']:<20} {preset:<15} {row['images']:>4} {row['ordered_pairs']:>5} {row['cold_s']:>7.1f} "
                   f"{row['s_per_pair']:>7.2f} {row['warm_s']:>7.2f} "
-                  f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} "
+                  f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} {thr:>5} "
                   f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
             if row.get("f_precision_note"):
                 print(f"{'':<20} F precision not measured: {row['f_precision_note']}")

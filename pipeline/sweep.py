@@ -181,10 +181,15 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
     Hs = A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None]
     rs = ref_stats(lab_image(rgb_ref, g_ref, sp), sp.window)
     sup_lab = lab_image(rgb_sup, g_sup, sp)
-    cost = np.empty((*g_ref, len(Hs)), np.uint8)
-    for d, H in enumerate(Hs):          # one vectorised warp and comparison per plane (a hypothesis, not a pixel)
+    planes = np.empty((len(Hs), *g_ref), np.uint8)
+    k = sp.window
+    lum_l = 1.0 if sp.lightness_mean else 0.0
+    for d, H in enumerate(Hs):          # one warp and comparison per plane (a hypothesis, not a pixel)
         img, valid = warp(sup_lab, H, g_ref)
-        cost[:, :, d] = _quantise(ssim_cost(rs, img, valid, sp.window, sp))
+        # window sums by box filters (OpenCV), then SSIM and quantisation in one compiled pass
+        planes[d] = _ssim_kernel(rs.lab, rs.mean, rs.var, _box(img, k), _box(img * img, k), _box(rs.lab * img, k),
+                                 _box(valid, k), float(sp.ssim_c1), float(sp.ssim_c2), lum_l)
+    cost = np.ascontiguousarray(planes.transpose(1, 2, 0))
     return SweepPair(ref, sup, cost, np.asarray(inv_depths, np.float64), time.perf_counter() - t0)
 
 
@@ -267,6 +272,37 @@ def _fuse_numba():
     return kernel
 
 
+def _ssim_numba():
+    """ssim_cost's arithmetic and _quantise in one pass over the pixels (numba): numpy makes a
+    dozen full-size temporaries per plane, which cost more than the box filters themselves."""
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def kernel(ref, ref_mean, ref_var, mu, sq, cross, inside, c1, c2, lum_l):
+        H, W, C = mu.shape
+        out = np.empty((H, W), np.uint8)
+        for y in range(H):
+            for x in range(W):
+                if inside[y, x] <= 0.999:
+                    out[y, x] = UNSEEN
+                    continue
+                acc = 0.0
+                for c in range(C):
+                    m1 = ref_mean[y, x, c]
+                    m2 = mu[y, x, c]
+                    v2 = max(sq[y, x, c] - m2 * m2, 0.0)
+                    cv = cross[y, x, c] - m1 * m2
+                    lum = (2 * m1 * m2 + c1) / (m1 * m1 + m2 * m2 + c1)
+                    if c == 0 and lum_l == 0.0:
+                        lum = 1.0
+                    acc += lum * (2 * cv + c2) / (ref_var[y, x, c] + v2 + c2)
+                cost = (1.0 - acc / C) * 0.5
+                cost = min(max(cost, 0.0), 1.0)
+                out[y, x] = np.uint8(int(cost * SCALE + 0.5))
+        return out
+    return kernel
+
+
 class _LazyKernel:
     def __init__(self, make):
         self._make, self._fn = make, None
@@ -278,3 +314,4 @@ class _LazyKernel:
 
 
 _fuse_kernel = _LazyKernel(_fuse_numba)
+_ssim_kernel = _LazyKernel(_ssim_numba)

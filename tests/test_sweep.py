@@ -1,0 +1,164 @@
+"""The depth-consistent cue (pipeline/sweep.py) and the peer baseline (pipeline/peer.py):
+properties, on images made here from a textured plane and known cameras."""
+
+import numpy as np
+import pytest
+
+from pipeline import sweep as SW
+from pipeline.params import SweepParams
+
+SP = SweepParams(enabled=True, scale=0.5, n_planes=48, window=7, blur=1.0)
+SIZE = (160, 200)
+K = np.array([[180.0, 0, 99.5], [0, 180.0, 79.5], [0, 0, 1]])
+DEPTH = 4.0
+
+
+def camera(x: float, y: float = 0.0):
+    return K, np.eye(3), np.array([x, y, 0.0])
+
+
+def texture(seed=0, size=(400, 480)):
+    rng = np.random.default_rng(seed)
+    import cv2
+    t = rng.integers(0, 255, (size[0] // 8, size[1] // 8, 3), dtype=np.uint8)
+    return cv2.resize(t, (size[1], size[0]), interpolation=cv2.INTER_CUBIC)
+
+
+def render(cam, tex, blobs=()):
+    """The photo of a fronto-parallel textured plane at z = DEPTH (the world frame is the reference
+    camera's), with square 'movers' (x, y world on the plane, size m, colour) pasted on it."""
+    import cv2
+    Kc, R, C = cam
+    h, w = SIZE
+    # plane point (u, v) of the texture -> world (X, Y, DEPTH); texture spans 6 m x 5 m
+    S = np.array([[6.0 / tex.shape[1], 0, -3.0], [0, 5.0 / tex.shape[0], -2.5], [0, 0, 1.0]])
+    P = Kc @ np.hstack([R, -R @ C[:, None]])
+    Hp = P @ np.array([[1, 0, 0], [0, 1, 0], [0, 0, DEPTH], [0, 0, 1.0]]) @ S      # texture px -> image
+    img = cv2.warpPerspective(tex, Hp, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    for (X, Y, m, col) in blobs:
+        q = P @ np.array([[X - m, Y - m, DEPTH, 1], [X + m, Y + m, DEPTH, 1]]).T
+        (x0, x1), (y0, y1) = q[0] / q[2], q[1] / q[2]
+        img[int(y0):int(y1), int(x0):int(x1)] = col
+    return img
+
+
+def ref_box(X, Y, m):
+    """The pixel box of a blob in the reference (camera at the origin)."""
+    q = K @ np.array([[X - m, Y - m, DEPTH], [X + m, Y + m, DEPTH]]).T
+    (x0, x1), (y0, y1) = q[0] / q[2], q[1] / q[2]
+    return slice(int(y0), int(y1)), slice(int(x0), int(x1))
+
+
+def grid(box):
+    """A working-resolution box on the sweep grid (scale 0.5), shrunk by the window's half."""
+    ys, xs = box
+    return slice(ys.start // 2 + 3, ys.stop // 2 - 3), slice(xs.start // 2 + 3, xs.stop // 2 - 3)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    tex = texture()
+    cams = [camera(0.0), camera(0.5), camera(-0.5, 0.2), camera(0.3, -0.3)]
+    inv = SW.inverse_depths((1.5, np.inf), SP.n_planes)
+    return tex, cams, inv
+
+
+def volumes(imgs, cams, inv):
+    return [SW.sweep_pair(0, k, imgs[0], imgs[k], cams[0], cams[k], inv, SP) for k in range(1, len(imgs))]
+
+
+def test_static_plane_gets_one_consistent_depth_and_a_low_cost(scene):
+    tex, cams, inv = scene
+    imgs = [render(c, tex) for c in cams]
+    f = SW.fuse(volumes(imgs, cams, inv), SP)
+    centre = (slice(25, 55), slice(30, 70))
+    assert np.nanmedian(f.cost[centre]) < 0.08
+    true_plane = int(np.argmin(np.abs(inv - 1.0 / DEPTH)))
+    assert np.mean(np.abs(f.plane[centre].astype(int) - true_plane) <= 1) > 0.9
+
+
+def test_an_object_that_moved_has_no_consistent_depth(scene):
+    tex, cams, inv = scene
+    red, blue = (230, 30, 30), (30, 30, 230)
+    # the mover is at a different place in every shot (and another colour in one)
+    places = [(0.0, 0.0), (0.9, 0.4), (-0.9, -0.3), (0.5, -0.8)]
+    imgs = [render(c, tex, [(x, y, 0.35, red if k != 2 else blue)]) for k, (c, (x, y)) in enumerate(zip(cams, places))]
+    f = SW.fuse(volumes(imgs, cams, inv), SP)
+    mover = grid(ref_box(0.0, 0.0, 0.35))
+    static = (slice(5, 15), slice(5, 30))
+    assert np.nanmedian(f.cost[mover]) > 0.25
+    assert np.nanmedian(f.cost[static]) < 0.1
+
+
+def test_a_support_where_the_point_is_hidden_does_not_veto(scene):
+    """One of three supports sees something else in front of the point (an occluder): the best
+    half of the supports still agree, the point stays static."""
+    tex, cams, inv = scene
+    imgs = [render(c, tex) for c in cams]
+    # occluder in support 1 at the projection of the reference's centre region
+    q = K @ (np.array([0.0, 0.0, DEPTH]) - cams[1][2])
+    x, y = int(q[0] / q[2]), int(q[1] / q[2])
+    imgs[1] = imgs[1].copy()
+    imgs[1][y - 25:y + 25, x - 25:x + 25] = (250, 250, 0)
+    f = SW.fuse(volumes(imgs, cams, inv), SP)
+    centre = grid(ref_box(0.0, 0.0, 0.3))
+    assert np.nanmedian(f.cost[centre]) < 0.1
+    s1 = 0                                      # support 1's own cost there is high: it was out-voted
+    assert np.nanmedian(f.per_support[s1][centre]) > 0.2
+
+
+def test_direct_comparison_finds_a_pasted_object():
+    """Two shots from one spot (identity alignment): a pasted object differs, the rest does not."""
+    tex = texture(1)
+    a = render(camera(0.0), tex)
+    b = a.copy()
+    b[60:100, 80:120] = (20, 200, 20)
+    r = SW.aligned_pair(0, 1, a, b, np.ones(SIZE, np.float32), SP)
+    cost = r.cost[:, :, 0].astype(float) / SW.SCALE
+    assert cost[34:46, 44:56].mean() > 0.3 and cost[5:20, 5:30].mean() < 0.05
+
+
+def test_the_fused_probability_is_monotone_in_each_cue():
+    from pipeline.aggregate import dynamic_from_log_odds, support_log_odds
+    from pipeline.params import get_preset
+    from pipeline.run import calibrated_log_odds
+    p = get_preset("default")
+    costs = np.linspace(0, 1, 11, dtype=np.float32)
+    assert np.all(np.diff(calibrated_log_odds(costs, p)) < 0)          # a higher cost: less static
+    probs = np.linspace(0.01, 0.99, 11, dtype=np.float32)
+    assert np.all(np.diff(support_log_odds(probs, p.aggregate)) > 0)   # a better match: more static
+    z = np.linspace(-5, 5, 11, dtype=np.float32)
+    assert np.all(np.diff(dynamic_from_log_odds(p.aggregate.calib_scale * (z - p.aggregate.calib_offset))) < 0)
+    assert dynamic_from_log_odds(np.zeros(1, np.float32) - p.aggregate.calib_offset)[0] <= 0.5   # no evidence
+
+
+def test_fusion_matches_a_plain_numpy_reference():
+    rng = np.random.default_rng(3)
+    pairs = [SW.SweepPair(0, k, rng.integers(0, 256, (6, 7, 5), dtype=np.uint8), np.zeros(5), 0.0) for k in range(4)]
+    f = SW.fuse(pairs, SP)
+    st = np.stack([p.cost for p in pairs]).astype(float)
+    st[st == SW.UNSEEN] = np.inf
+    st /= SW.SCALE
+    n = np.isfinite(st).sum(0)
+    k = np.maximum(np.ceil(n * SP.best_share), 1).astype(int)
+    cs = np.cumsum(np.where(np.isfinite(np.sort(st, 0)), np.sort(st, 0), 0), 0)
+    fused = np.take_along_axis(cs, (k - 1)[None], 0)[0] / k
+    fused[n == 0] = np.inf
+    want = fused.min(-1)
+    np.testing.assert_allclose(np.where(np.isfinite(want), want, np.nan), f.cost, atol=1e-6)
+
+
+def test_peer_baseline_finds_a_pasted_object_under_pure_rotation():
+    import cv2
+
+    from pipeline.peer import difference, dynamic_from_differences
+    tex = texture(2)
+    a = render(camera(0.0), tex)
+    ang = np.deg2rad(4)
+    R = np.array([[np.cos(ang), 0, np.sin(ang)], [0, 1, 0], [-np.sin(ang), 0, np.cos(ang)]])
+    H = K @ R @ np.linalg.inv(K)                               # a pure rotation: x_b ~ H x_a
+    b = cv2.warpPerspective(a, H, (SIZE[1], SIZE[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    a = a.copy()
+    a[60:100, 80:120] = (240, 20, 20)                          # only in the reference
+    p = dynamic_from_differences([difference(0, 1, a, b, H).diff])
+    assert p[70:90, 90:110].mean() > 0.8 and p[20:40, 20:60].mean() < 0.3
