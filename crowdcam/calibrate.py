@@ -5,8 +5,8 @@ depth-consistent cue, pipeline/run.py). A sum of log-odds from cues that are not
 not a probability yet (EVIDENCE_NOTES point 6). We map it by P_dynamic = 1 / (1 + e^(s (z - z0))):
 
 - z0 is the threshold on z that maximises the mean Jaccard over the calibration sets (§4.2), so
-  that the best threshold on P_dynamic sits at 0.5, but never above 0: z = 0 is "no evidence"
-  (no support sees the point), and no evidence must not read as motion (P_dynamic <= 0.5);
+  that the best threshold on P_dynamic sits at 0.5 (a pixel no support speaks about is set to 0.5
+  by the pipeline whatever z0 is: no evidence never reads as motion);
 - s is the slope of a logistic regression of "moving" on z, so that P_dynamic changes as fast as
   the frequency of movers does around it.
 
@@ -74,7 +74,7 @@ def fit(samples) -> dict:
     curves = np.array([np.mean(c, axis=0) for c in by_set.values()])
     mean = curves.mean(axis=0)
     best_z = float(grid[int(np.argmax(mean))])
-    z0 = min(best_z, 0.0)
+    z0 = best_z
     zs = np.concatenate([z[care][::5] for z, _, care, _ in samples]).astype(np.float64)
     ys = np.concatenate([m[care][::5] for _, m, care, _ in samples]).astype(np.float64)
     X = np.column_stack([np.ones_like(zs), zs])

@@ -118,7 +118,23 @@ class SetResult:
             return self.refine_dynamic(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
         z = self.static_log_odds(i, supports, p)
         a = p.aggregate
-        return self.refine_dynamic(i, dynamic_from_log_odds(a.calib_scale * (z - a.calib_offset)), p)
+        dyn = dynamic_from_log_odds(a.calib_scale * (z - a.calib_offset))
+        # a point no support speaks about is no evidence, never motion (EVIDENCE_NOTES point 7)
+        return self.refine_dynamic(i, np.where(self.has_evidence(i, supports, p), dyn, 0.5).astype(np.float32), p)
+
+    def has_evidence(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
+        """(h, w) bool: some support had a candidate for the pixel (Eq. 2 evidence) or saw it at
+        the shared depth."""
+        p = params or self.params
+        seen = np.zeros(self.photo_set.photos[i].size, bool)
+        for j in supports:
+            r = self.pair_results[(i, j)]
+            if hasattr(r, "evidence"):
+                seen |= r.evidence > 0.05
+        f = self.fused(i, supports, p) if p.sweep.weight > 0 else None
+        if f is not None:
+            seen |= self._upsample(i, (f.n_seen > 0).astype(np.float32)) > 0.5
+        return seen
 
     def sweep(self, i: int, params: Params | None = None) -> list[np.ndarray]:
         """P_dynamic of photo i after its first 1, 2, ... k supports (the paper's Fig. 5); the last
