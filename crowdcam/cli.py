@@ -123,7 +123,10 @@ def cmd_detect(args) -> int:
     rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, "
              f"max side {params.max_side}")
     t0 = time.perf_counter()
-    res = detect_set(photo_set, params, _cache(args, rep), workers=args.workers, progress=rep.progress, warn=rep.warn)
+    if args.max_supports is not None and args.max_supports < 0:
+        raise CliError(f"--max-supports must be 0 (no cap) or more (got {args.max_supports})")
+    res = detect_set(photo_set, params, _cache(args, rep), workers=args.workers, progress=rep.progress, warn=rep.warn,
+                     max_supports=args.max_supports)
     rep.close()
     res.timings["total_s"] = time.perf_counter() - t0
     extra = {}
@@ -468,6 +471,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--threshold", type=float, default=None, help="mask threshold on P_dynamic (default 0.5)")
     d.add_argument("--gt", default=None, metavar="DIR",
                    help="ground-truth masks <photo stem>.png (default: gt/ beside the photos or beside images/)")
+    d.add_argument("--max-supports", type=int, default=None, metavar="K",
+                   help="at most K supports per photo, the best by geometry and viewpoint (default: 8 for sets of "
+                        "more than 9 photos, no cap below; 0: no cap)")
     d.add_argument("--export-colmap", default=None, metavar="DIR",
                    help="write the set's reconstruction (cameras, sparse points) in COLMAP's text format")
     d.add_argument("--rrd", default=None, help="record the run's internals to this Rerun file")

@@ -239,7 +239,7 @@ def dynamic_prob(snap: SetResult, settings: Settings, terms: TermCache) -> np.nd
     i = settings.ref
 
     def make():
-        if p.geometry.peer_homography:
+        if p.geometry.peer_homography or p.aggregate.mean_terms:
             return snap.dynamic_prob(i, sups, p)
         logit = terms.term(snap, i, sups[0], p).copy()
         for j in sups[1:]:

@@ -99,6 +99,7 @@ class AggregateParams:
     # crowdcam calibrate fits them on rendered sets that are not bundled (the best threshold then sits near 0.5).
     calib_scale: float = 1.0
     calib_offset: float = 0.0
+    mean_terms: bool = False           # paper: Eq. 3 sums the supports' log-odds; True: their mean per pixel
 
 
 @dataclass(frozen=True)
@@ -168,8 +169,9 @@ PRESETS: dict[str, Params] = {
         geometry=GeometryParams(homography_pairs=True, triplet_check=True, reconstruction=True),
         patches=PatchParams(homography_reach_frac=0.1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
-        aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, calib_scale=1.23, calib_offset=0.0),
-        sweep=SweepParams(enabled=True, blur=1.0),
+        aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
+                                  calib_scale=1.0, calib_offset=0.0),
+        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
     "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),

@@ -30,7 +30,7 @@ from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
 from .reconstruction import SetCameras, apply_reconstruction, reconstruct
-from .support import PairGeometry, estimate_pair, support_sets, triplet_check
+from .support import PairGeometry, cap_supports, estimate_pair, support_sets, triplet_check
 from .peer import PeerPair, difference, dynamic_from_differences
 from .sweep import Fused, fuse, inverse_depths, sweep_pair
 
@@ -101,8 +101,12 @@ class SetResult:
         swept ones (sweep_log_odds, weighted by `sweep.weight`). 0 is no evidence."""
         p = params or self.params
         logit = np.zeros(self.photo_set.photos[i].size, np.float32)
+        count = np.zeros(self.photo_set.photos[i].size, np.float32)
         for j in supports:
             logit += support_log_odds(self.match_prob(i, j, p), p.aggregate)
+            count += self.pair_results[(i, j)].evidence > 0.05
+        if p.aggregate.mean_terms:       # per support: comparable across photos with few and many supports
+            logit /= np.maximum(count, 1.0)
         sw = self.sweep_log_odds(i, supports, p) if p.sweep.weight > 0 else None
         if sw is not None:
             logit += p.sweep.weight * sw
@@ -429,12 +433,14 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                warn: Callable[[str], None] | None = None, only_refs: Iterable[int] | None = None,
                on_geometry: Callable[[dict, list[list[int]], SetCameras | None], int | None] | None = None,
                on_pair: Callable[[tuple[int, int], PairResult], None] | None = None,
-               cancel: threading.Event | None = None) -> SetResult:
+               cancel: threading.Event | None = None, max_supports: int | None = None) -> SetResult:
     """Compute P_dynamic for every photo of the set (or only for `only_refs`).
 
     For viewers that show results as they arrive: `on_geometry(pairs, supports, cameras)` is called once
     the support sets and the cameras are known (it may return a reference whose pairs are then computed first),
     `on_pair((i, j), result)` for every pair result (cached ones first). Setting `cancel` stops the run soon after (raises Cancelled).
+    max_supports: at most this many supports per reference (support.cap_supports); None: 8 for sets
+    of more than 9 photos, no cap below; 0: no cap.
     """
     cache = cache or cache_mod.PairCache(None)
     workers = default_workers() if workers is None else workers
@@ -512,6 +518,9 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         if params.geometry.triplet_check:
             pairs = triplet_check(pairs, n, params.geometry.triplet_max_px)
         supports = support_sets(pairs, n)
+        cap = max_supports if max_supports is not None else (8 if n > 9 else None)
+        if cap is not None and cap > 0:
+            supports = cap_supports(supports, pairs, cap, cameras.C if cameras is not None else None)
         timings["geometry_s"] = time.perf_counter() - t0
         if n >= 2 and not any(supports):
             reasons = sorted({pairs[(i, j)].reason.split(" (")[0] for i in range(n) for j in range(i + 1, n)})

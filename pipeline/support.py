@@ -270,3 +270,44 @@ def triplet_check(pairs: dict[tuple[int, int], PairGeometry], n: int, max_px: fl
 def support_sets(pairs: dict[tuple[int, int], PairGeometry], n: int) -> list[list[int]]:
     """For each reference index, the sorted indices of its admitted support images."""
     return [sorted(j for j in range(n) if j != i and pairs[(i, j)].ok) for i in range(n)]
+
+
+def cap_supports(supports: list[list[int]], pairs: dict, k: int, centres: np.ndarray | None = None
+                 ) -> list[list[int]]:
+    """At most k supports per reference (issue: large sets), chosen greedily for geometry quality
+    and viewpoint diversity, deterministically.
+
+    Quality: log(1 + verified matches) minus the epipolar-line uncertainty in units of 4 px.
+    Diversity (when camera centres (n, 3) are known, NaN rows for unregistered photos): each next
+    support gains twice the smallest angle (radians, seen from the reference) to those chosen.
+    The result keeps each reference's supports in index order.
+    """
+    out = []
+    for i, sup in enumerate(supports):
+        if len(sup) <= k:
+            out.append(list(sup))
+            continue
+        q = {}
+        for j in sup:
+            g = pairs[(i, j)]
+            unc = g.uncertainty_px if np.isfinite(g.uncertainty_px) else 4.0
+            q[j] = np.log1p(g.n_inliers) - unc / 4.0
+        d = {}
+        if centres is not None and np.all(np.isfinite(centres[i])):
+            for j in sup:
+                v = centres[j] - centres[i]
+                if np.all(np.isfinite(v)) and np.linalg.norm(v) > 0:
+                    d[j] = v / np.linalg.norm(v)
+        chosen: list[int] = []
+        left = list(sup)
+        while left and len(chosen) < k:
+            def score(j):
+                div = 0.0
+                if j in d and any(c in d for c in chosen):
+                    div = 2.0 * min(np.arccos(np.clip(d[j] @ d[c], -1, 1)) for c in chosen if c in d)
+                return (q[j] + div, -j)
+            best = max(left, key=score)
+            chosen.append(best)
+            left.remove(best)
+        out.append(sorted(chosen))
+    return out

@@ -96,3 +96,24 @@ def test_degenerate_samples_give_no_model_not_an_error():
         assert F is None or F.shape == (3, 3)
         H, hmask = _fit_h(a, b, 3.0)
         assert H is None or H.shape == (3, 3)
+
+
+def test_cap_supports_picks_k_deterministically_and_spreads_viewpoints():
+    """The cap keeps k supports: the best matched first, then those that see from elsewhere."""
+    from pipeline.support import OK, PairGeometry, cap_supports
+    empty = np.zeros((0, 2), np.float32)
+    n = 7
+    centres = np.array([[0, 0, 0], [1, 0, 0], [1.05, 0, 0], [1.1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0.0]])
+    inliers = {1: 900, 2: 880, 3: 870, 4: 300, 5: 290, 6: 280}
+    pairs = {}
+    for j in range(1, n):
+        pairs[(0, j)] = PairGeometry(0, j, np.eye(3), OK, "", inliers[j], inliers[j], 0.5, 0.1, 0.1, 1.0,
+                                     empty, empty, empty, empty, source="reconstruction", uncertainty_px=1.0)
+    supports = [list(range(1, n))] + [[] for _ in range(n - 1)]
+    a = cap_supports(supports, pairs, 3, centres)
+    assert a == cap_supports(supports, pairs, 3, centres)          # deterministic
+    assert len(a[0]) == 3 and 1 in a[0]
+    assert len({2, 3} & set(a[0])) == 0          # near-duplicates of the first viewpoint lose to other directions
+    b = cap_supports(supports, pairs, 3, None)                     # without cameras: the best matched
+    assert b[0] == [1, 2, 3]
+    assert cap_supports(supports, pairs, 10, centres)[0] == supports[0]
