@@ -126,7 +126,7 @@ def cmd_detect(args) -> int:
     if args.max_supports is not None and args.max_supports < 0:
         raise CliError(f"--max-supports must be 0 (no cap) or more (got {args.max_supports})")
     res = detect_set(photo_set, params, _cache(args, rep), workers=args.workers, progress=rep.progress, warn=rep.warn,
-                     max_supports=args.max_supports)
+                     max_supports=args.max_supports, scheduler=args.scheduler)
     rep.close()
     res.timings["total_s"] = time.perf_counter() - t0
     extra = {}
@@ -474,6 +474,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--max-supports", type=int, default=None, metavar="K",
                    help="at most K supports per photo, the best by geometry and viewpoint (default: 8 for sets of "
                         "more than 9 photos, no cap below; 0: no cap)")
+    d.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="run the per-pair work on a Dask distributed cluster (README: Beyond one machine)")
     d.add_argument("--export-colmap", default=None, metavar="DIR",
                    help="write the set's reconstruction (cameras, sparse points) in COLMAP's text format")
     d.add_argument("--rrd", default=None, help="record the run's internals to this Rerun file")
@@ -542,10 +544,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     from pipeline.loading import InputError
-    from pipeline.run import WorkerDied
+    from pipeline.run import SchedulerError, WorkerDied
     try:
         return args.fn(args)
-    except (InputError, CliError) as e:
+    except (InputError, CliError, SchedulerError) as e:
         print(f"crowdcam: error: {one_line(e)}", file=sys.stderr)
         return EXIT_USAGE
     except WorkerDied as e:

@@ -363,6 +363,72 @@ class _Runner:
             self.pool = None
 
 
+class SchedulerError(RuntimeError):
+    """The Dask scheduler given by the user cannot be reached."""
+
+
+class _DaskRunner:
+    """Runs the same tasks on a Dask distributed cluster (`--scheduler tcp://HOST:PORT`).
+
+    The photos and parameters travel to every worker once, in a worker plugin that sets up the
+    same per-process state as the local pool (_init_worker); tasks then carry only indices and
+    pair geometry, and their results (serialised bytes) come back to be cached where the client
+    runs. Dask reschedules the tasks of a worker that dies; a task that kills workers repeatedly
+    ends the run with WorkerDied, like the local pool."""
+
+    def __init__(self, rgbs: list[np.ndarray], params: Params, scheduler: str, timeout: float = 10.0):
+        try:
+            from distributed import Client
+        except ImportError:                       # pragma: no cover - a dependency of the project
+            raise SchedulerError("--scheduler needs the packages dask and distributed") from None
+        try:
+            self.client = Client(scheduler, timeout=timeout)
+        except Exception as e:
+            raise SchedulerError(f"{scheduler}: no Dask scheduler answered within {timeout:g} s "
+                                 f"({type(e).__name__})") from None
+        self.client.register_plugin(_photos_plugin(rgbs, params), name="crowdcam-photos")
+        self.workers = len(self.client.scheduler_info().get("workers", {}))
+
+    def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
+            label: Callable[[tuple], str] = lambda a: str(a[:2])) -> None:
+        if not arg_list:
+            return
+        from distributed import as_completed as dask_completed
+        from distributed.scheduler import KilledWorker
+        futures = {self.client.submit(fn, *a, pure=False): a for a in arg_list}
+        try:
+            for fut in dask_completed(futures):
+                try:
+                    result = fut.result()
+                except KilledWorker:
+                    raise WorkerDied(f"Dask workers died repeatedly while computing {label(futures[fut])}; "
+                                     "the finished pairs are cached, a re-run resumes") from None
+                on_done(result)
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+    def close(self, kill: bool = False) -> None:
+        self.client.close()
+
+
+def _photos_plugin(rgbs, params):
+    """A Dask worker plugin: the run's photos and parameters, set up once per worker process."""
+    from distributed import WorkerPlugin
+
+    class PhotosPlugin(WorkerPlugin):
+        def __init__(self, rgbs, params):
+            self.rgbs, self.params = rgbs, params
+
+        def setup(self, worker=None):
+            _init_worker(self.rgbs, self.params)
+
+        def teardown(self, worker=None):
+            _W.clear()
+    return PhotosPlugin(rgbs, params)
+
+
 def _check(cancel: threading.Event | None) -> None:
     if cancel is not None and cancel.is_set():
         raise Cancelled()
@@ -433,14 +499,16 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                warn: Callable[[str], None] | None = None, only_refs: Iterable[int] | None = None,
                on_geometry: Callable[[dict, list[list[int]], SetCameras | None], int | None] | None = None,
                on_pair: Callable[[tuple[int, int], PairResult], None] | None = None,
-               cancel: threading.Event | None = None, max_supports: int | None = None) -> SetResult:
+               cancel: threading.Event | None = None, max_supports: int | None = None,
+               scheduler: str | None = None) -> SetResult:
     """Compute P_dynamic for every photo of the set (or only for `only_refs`).
 
     For viewers that show results as they arrive: `on_geometry(pairs, supports, cameras)` is called once
     the support sets and the cameras are known (it may return a reference whose pairs are then computed first),
     `on_pair((i, j), result)` for every pair result (cached ones first). Setting `cancel` stops the run soon after (raises Cancelled).
     max_supports: at most this many supports per reference (support.cap_supports); None: 8 for sets
-    of more than 9 photos, no cap below; 0: no cap.
+    of more than 9 photos, no cap below; 0: no cap. scheduler: a Dask scheduler address
+    (tcp://HOST:PORT) to run the per-pair work on instead of the local process pool.
     """
     cache = cache or cache_mod.PairCache(None)
     workers = default_workers() if workers is None else workers
@@ -457,7 +525,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     rgbs = [p.rgb for p in photos]
     timings: dict[str, float] = {}
     hits0, miss0 = cache.hits, cache.misses
-    runner = _Runner(rgbs, params, workers)
+    runner = _DaskRunner(rgbs, params, scheduler) if scheduler else _Runner(rgbs, params, workers)
     try:
         # 1-2. Geometry per unordered pair, cached; features only when some pair needs them.
         t0 = time.perf_counter()
