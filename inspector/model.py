@@ -21,7 +21,7 @@ import numpy as np
 
 from pipeline.aggregate import dynamic_from_log_odds, support_log_odds
 from pipeline.cache import PairCache
-from pipeline.evaluate import jaccard, jaccard_curve, THRESHOLDS
+from pipeline.evaluate import jaccard, jaccard_curve, score_set, THRESHOLDS
 from pipeline.loading import InputError, PhotoSet
 from pipeline.output import to_original
 from pipeline.params import Params, get_preset
@@ -278,6 +278,38 @@ def score(photo_set: PhotoSet, i: int, dyn: np.ndarray, gt: np.ndarray, threshol
     curve = jaccard_curve(prob, gt)
     k = int(np.argmax(curve))
     return Score(jaccard(prob > threshold, gt), float(curve[k]), float(THRESHOLDS[k]), curve)
+
+
+@dataclass(frozen=True)
+class SetBest:
+    """The threshold optimised over the whole set (§4.2, "opt. per set"), scored by
+    pipeline.evaluate.score_set over the maps that exist: threshold, the mean Jaccard there, and
+    how many photos (with a map and ground truth) it was computed on."""
+
+    threshold: float
+    jaccard: float
+    n_photos: int
+
+
+def set_best_threshold(snap: SetResult, settings: Settings, gts: dict[str, np.ndarray],
+                       off: dict[int, set[int]] | None = None) -> SetBest | None:
+    """The set-wide best threshold for this tab's choices: every photo with ground truth and at
+    least one ready support gets its map from the pipeline (SetResult.dynamic_prob) with the
+    tab's aggregation settings and its supports minus those switched off (`off`: per
+    reference); None when no photo has both."""
+    off = off or {}
+    p = settings.params()
+    probs = {}
+    for i, photo in enumerate(snap.photo_set.photos):
+        if photo.stem not in gts:
+            continue
+        sups = [j for j in snap.supports[i] if (i, j) in snap.pair_results and j not in off.get(i, ())]
+        if sups:
+            probs[photo.stem] = to_original(snap.dynamic_prob(i, sups, p), photo)
+    if not probs:
+        return None
+    sc = score_set(probs, gts)
+    return SetBest(sc.set_threshold, sc.mean_opt_set, len(probs))
 
 
 def gt_at_working(gt: np.ndarray, size: tuple[int, int]) -> np.ndarray:
