@@ -170,7 +170,7 @@ PRESETS: dict[str, Params] = {
         patches=PatchParams(homography_reach_frac=0.1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
-                                  calib_scale=1.0, calib_offset=0.0),
+                                  calib_scale=1.12, calib_offset=0.2),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
