@@ -90,7 +90,8 @@ class SetModel:
         self.pairs: dict | None = None
         self.supports: list[list[int]] | None = None
         self.cameras = None
-        self.results: dict = {}
+        from pipeline.store import PairStore
+        self.results = PairStore(cache)       # pair results; the most recently used stay in memory
         self.first_ref: int | None = None
         self.seconds = 0.0
         self._lock = threading.Lock()
@@ -131,14 +132,13 @@ class SetModel:
                     raise Cancelled()
             return self.first_ref
 
-        def on_pair(ij, result):
-            with self._lock:
-                self.results[ij] = result
+        def on_pair(ij, result):             # detect_set has put it in self.results
             self._notify()
 
         try:
             detect_set(self.photo_set, self.params, self.cache, workers=self.workers, progress=progress,
-                       warn=self.warnings.append, on_geometry=on_geometry, on_pair=on_pair, cancel=self._cancel)
+                       warn=self.warnings.append, on_geometry=on_geometry, on_pair=on_pair, cancel=self._cancel,
+                       store=self.results)
             self.status = "done"
         except Cancelled:
             self.status = "cancelled"
@@ -155,13 +155,16 @@ class SetModel:
             self._thread.join(timeout=30)
 
     def pair_state(self, i: int, j: int) -> tuple[str, str]:
-        """("ready" | "computing" | "rejected" | "unknown", reason) for ordered pair (i, j)."""
+        """("ready" | "computing" | "rejected" | "unused" | "unknown", reason) for ordered pair
+        (i, j); "unused": admitted, but not among the supports kept for photo i (the cap)."""
         with self._lock:
             if self.pairs is None:
                 return "unknown", "geometry is being estimated"
             g = self.pairs.get((i, j))
             if g is None or not g.ok:
                 return "rejected", g.reason if g is not None else "no geometry"
+            if self.supports is not None and j not in self.supports[i]:
+                return "unused", "admitted, but not among the supports kept for this photo (the best ones)"
             if (i, j) in self.results:
                 return "ready", g.status
             return ("computing" if self.status in ("waiting", "running") else "unknown"), g.status
@@ -174,7 +177,7 @@ class SetModel:
                 return None
             n = len(self.results)
             if self._snap[0] != n:
-                self._snap = (n, assemble(self.photo_set, self.params, self.pairs, self.supports, dict(self.results),
+                self._snap = (n, assemble(self.photo_set, self.params, self.pairs, self.supports, self.results.view(),
                                           cameras=self.cameras))
             return self._snap[1]
 

@@ -30,6 +30,7 @@ from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
 from .reconstruction import SetCameras, apply_reconstruction, reconstruct
+from .store import PairStore, light_of
 from .support import PairGeometry, cap_supports, estimate_pair, support_sets, triplet_check
 from .peer import PeerPair, difference, dynamic_from_differences
 from .sweep import Fused, fuse, inverse_depths, sweep_pair
@@ -56,7 +57,7 @@ class SetResult:
     photo_set: PhotoSet
     pairs: dict[tuple[int, int], PairGeometry]
     supports: list[list[int]]
-    pair_results: dict[tuple[int, int], PairResult]
+    pair_results: "Mapping[tuple[int, int], PairResult]"     # a store.PairStore (or a dict)
     normaliser: Normaliser
     dynamic: list[np.ndarray | None]
     timings: dict[str, float] = field(default_factory=dict)
@@ -69,8 +70,11 @@ class SetResult:
 
     def is_swept(self, i: int, j: int) -> bool:
         """The pair also has a cost volume of the depth sweep (sweep.py)."""
-        r = self.pair_results.get((i, j))
-        return r is not None and getattr(r, "sweep", None) is not None
+        return (i, j) in self.pair_results and _light(self.pair_results, (i, j)).swept
+
+    def kind(self, i: int, j: int) -> str:
+        """"epipolar", "homography" or "peer" (without loading an evicted pair)."""
+        return _light(self.pair_results, (i, j)).kind
 
     def fused(self, i: int, supports: list[int], params: Params | None = None) -> Fused | None:
         """The depth-consistent fusion of photo i's swept supports among `supports` (sweep.fuse),
@@ -434,6 +438,11 @@ def _check(cancel: threading.Event | None) -> None:
         raise Cancelled()
 
 
+def _light(results, ij):
+    """The in-memory summary of a pair (store.Light), from a PairStore (no loading) or a dict."""
+    return results.light(ij) if hasattr(results, "light") else light_of(results[ij])
+
+
 def assemble(photo_set: PhotoSet, params: Params, pairs: dict, supports: list[list[int]],
              results: dict[tuple[int, int], PairResult], keypoints: list | None = None,
              timings: dict | None = None, warnings: list | None = None, cameras: SetCameras | None = None
@@ -441,8 +450,9 @@ def assemble(photo_set: PhotoSet, params: Params, pairs: dict, supports: list[li
     """A SetResult from pair results (all of them, or those finished so far), with the set-level
     normaliser of §3.1.2 over exactly these pairs; no P_dynamic computed yet."""
     n = len(photo_set.photos)
-    strips = [r for r in results.values() if r.kind in ("epipolar", "homography")]     # not the peer's
-    norm = Normaliser.from_confidences([r.patches.conf_hog for r in strips], [r.patches.conf_color for r in strips],
+    strips = [_light(results, ij) for ij in results]
+    strips = [r for r in strips if r.kind in ("epipolar", "homography")]     # not the peer's
+    norm = Normaliser.from_confidences([r.conf_hog for r in strips], [r.conf_color for r in strips],
                                        params.descriptors.norm_percentile)
     kps = [k if k is not None else np.zeros((0, 2), np.float32) for k in (keypoints or [None] * n)]
     return SetResult(params, photo_set, pairs, supports, results, norm, [None] * n, timings or {},
@@ -500,7 +510,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                on_geometry: Callable[[dict, list[list[int]], SetCameras | None], int | None] | None = None,
                on_pair: Callable[[tuple[int, int], PairResult], None] | None = None,
                cancel: threading.Event | None = None, max_supports: int | None = None,
-               scheduler: str | None = None) -> SetResult:
+               scheduler: str | None = None, store: PairStore | None = None) -> SetResult:
     """Compute P_dynamic for every photo of the set (or only for `only_refs`).
 
     For viewers that show results as they arrive: `on_geometry(pairs, supports, cameras)` is called once
@@ -508,7 +518,9 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     `on_pair((i, j), result)` for every pair result (cached ones first). Setting `cancel` stops the run soon after (raises Cancelled).
     max_supports: at most this many supports per reference (support.cap_supports); None: 8 for sets
     of more than 9 photos, no cap below; 0: no cap. scheduler: a Dask scheduler address
-    (tcp://HOST:PORT) to run the per-pair work on instead of the local process pool.
+    (tcp://HOST:PORT) to run the per-pair work on instead of the local process pool. store: where
+    pair results go (a viewer passes its own to read them while the run goes on); only the most
+    recently used stay in memory, the others reload from the cache (store.PairStore).
     """
     cache = cache or cache_mod.PairCache(None)
     workers = default_workers() if workers is None else workers
@@ -623,14 +635,14 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             if params.geometry.peer_homography:
                 return cache_mod.from_bytes(PeerPair, data, float32=("diff",))
             return cache_mod.from_bytes(PairResult, data, float32=MAP_FIELDS)
-        results: dict[tuple[int, int], PairResult | PeerPair] = {}
+        results = store if store is not None else PairStore(cache)
         todo = []
         for ij in ordered:
-            r = cache.load("pair", pkey[ij], lambda d: load(ij, d))
+            r = cache.load("pair", pkey[ij], lambda d, ij=ij: load(ij, d))
             if r is not None:
-                results[ij] = r
+                results.put(ij, r, pkey[ij], lambda d, ij=ij: load(ij, d))
                 if on_pair:
-                    on_pair(ij, results[ij])
+                    on_pair(ij, r)
             else:
                 todo.append(ij)
         pdone = [len(ordered) - len(todo)]
@@ -640,9 +652,10 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             _check(cancel)
             ij, data = res
             cache.put("pair", pkey[ij], data)
-            results[ij] = load(ij, data)
+            r = load(ij, data)
+            results.put(ij, r, pkey[ij], lambda d, ij=ij: load(ij, d))
             if on_pair:
-                on_pair(ij, results[ij])
+                on_pair(ij, r)
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
         runner.map(_task_pair, [(i, j, pairs[(i, j)], (cam(i), cam(j), inv[i]) if (i, j) in swept else None)
