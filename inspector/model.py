@@ -253,7 +253,7 @@ def dynamic_prob(snap: SetResult, settings: Settings, terms: TermCache) -> np.nd
         if sw is not None and p.sweep.weight > 0:
             logit += p.sweep.weight * sw
         a = p.aggregate
-        dyn = dynamic_from_log_odds(a.calib_scale * (logit - a.calib_offset))
+        dyn = dynamic_from_log_odds(a.calib_scale * (logit - a.calib_offset * snap.sweep_seen(i, sups, p)))
         return snap.refine_dynamic(i, np.where(snap.has_evidence(i, sups, p), dyn, 0.5).astype(np.float32), p)
     # keyed like the terms (by the normaliser, not the snapshot object, whose id can be reused), and by
     # which supports carry a depth sweep

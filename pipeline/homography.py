@@ -136,12 +136,11 @@ def _centre(index, s: int):
     return (index - PAD + 1.5) * s - 0.5
 
 
-def _within_reach(points: np.ndarray, s: int, grid: tuple[int, int], size: tuple[int, int], reach: float
-                  ) -> np.ndarray:
-    """(py, px) bool: the patch centre lies inside the convex hull of `points` ((K, 2) float x, y),
-    or within `reach` px of it. Inside the hull H interpolates what its inliers confirm (the river
-    between two matched shores); beyond it H extrapolates, which a plane seen from apart does not
-    survive (the ground below a matched facade)."""
+def reach_distance(points: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(h, w) float32: each pixel's distance to the convex hull of `points` ((K, 2) float x, y),
+    0 inside. Inside the hull H interpolates what its inliers confirm (the river between two
+    matched shores); beyond it H extrapolates, which a plane seen from apart does not survive (the
+    ground below a matched facade)."""
     h, w = size
     free = np.full((h, w), 255, np.uint8)
     xy = np.round(points).astype(np.int32)
@@ -149,7 +148,26 @@ def _within_reach(points: np.ndarray, s: int, grid: tuple[int, int], size: tuple
     free[xy[ok, 1], xy[ok, 0]] = 0
     if ok.sum() >= 3:
         cv2.fillConvexPoly(free, cv2.convexHull(xy[ok]), 0)
-    dist = cv2.distanceTransform(free, cv2.DIST_L2, 5)
+    return cv2.distanceTransform(free, cv2.DIST_L2, 5)
+
+
+def aligned_support(rgb_sup: np.ndarray, H: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The support warped into the reference frame by H (x_sup ~ H x_ref): ((h, w, 3) uint8,
+    (h, w) float32 coverage)."""
+    h, w = size
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    warped = cv2.warpPerspective(rgb_sup, H, (w, h), flags=flags, borderMode=cv2.BORDER_REFLECT)
+    inside = cv2.warpPerspective(np.ones(rgb_sup.shape[:2], np.float32), H, (w, h),
+                                 flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderValue=0)
+    return warped, inside
+
+
+def _within_reach(points: np.ndarray, s: int, grid: tuple[int, int], size: tuple[int, int], reach: float
+                  ) -> np.ndarray:
+    """(py, px) bool: the patch centre lies within `reach` px of the convex hull of `points`
+    (reach_distance)."""
+    h, w = size
+    dist = reach_distance(points, size)
     py, px = grid
     cy = np.clip(_centre(np.arange(py), s).round().astype(np.int64), 0, h - 1)
     cx = np.clip(_centre(np.arange(px), s).round().astype(np.int64), 0, w - 1)

@@ -111,6 +111,7 @@ class SweepParams:
     n_planes: int = 150                # planes uniform in inverse depth over the reference's depth range
     window: int = 7                    # SSIM window on the sweep grid (14 px at 640)
     lab_weights: tuple[float, float, float] = (1.0, 2.0, 2.0)   # L, a, b: colour counts double
+    direct_homography: bool = True     # homography pairs without cameras: SSIM of the aligned pixels as well
     lightness_mean: bool = True        # SSIM's luminance term on L (False: structure only on L)
     blur: float = 0.0                  # Gaussian sigma (grid px) before comparing
     best_share: float = 0.5            # fuse the best half of the supports that see a point (occlusion)

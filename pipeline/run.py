@@ -33,7 +33,9 @@ from .reconstruction import SetCameras, apply_reconstruction, reconstruct
 from .store import PairStore, light_of
 from .support import PairGeometry, cap_supports, estimate_pair, support_sets, triplet_check
 from .peer import PeerPair, difference, dynamic_from_differences
-from .sweep import Fused, fuse, inverse_depths, sweep_pair
+from .homography import aligned_support, reach_distance
+from .photometric import normalise_aligned
+from .sweep import Fused, aligned_pair, fuse, inverse_depths, sweep_pair
 
 Progress = Callable[[str, int, int], None]
 
@@ -126,9 +128,19 @@ class SetResult:
             return self.refine_dynamic(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
         z = self.static_log_odds(i, supports, p)
         a = p.aggregate
-        dyn = dynamic_from_log_odds(a.calib_scale * (z - a.calib_offset))
+        dyn = dynamic_from_log_odds(a.calib_scale * (z - a.calib_offset * self.sweep_seen(i, supports, p)))
         # a point no support speaks about is no evidence, never motion (EVIDENCE_NOTES point 7)
         return self.refine_dynamic(i, np.where(self.has_evidence(i, supports, p), dyn, 0.5).astype(np.float32), p)
+
+    def sweep_seen(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
+        """(h, w) float32, 1 where some swept support sees the point, else 0. The calibration's
+        offset applies there only: it was fitted with the depth cue, and without it the decision
+        at 0.5 stays Eq. 3's (the static and dynamic terms balance)."""
+        p = params or self.params
+        f = self.fused(i, supports, p) if p.sweep.weight > 0 else None
+        if f is None:
+            return np.zeros(self.photo_set.photos[i].size, np.float32)
+        return (self._upsample(i, (f.n_seen > 0).astype(np.float32)) > 0.5).astype(np.float32)
 
     def has_evidence(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
         """(h, w) bool: some support had a candidate for the pixel (Eq. 2 evidence) or saw it at
@@ -290,6 +302,15 @@ def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None)
         r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, p)
     if sweep_args is not None:
         r = dataclasses.replace(r, sweep=sweep_pair(i, j, rgb_i, normalised, *sweep_args, p.sweep))
+    elif g.is_homography and p.sweep.enabled and p.sweep.direct_homography:
+        # shots from one spot without cameras: compare the aligned pixels directly, where H is trusted
+        h, w = rgb_i.shape[:2]
+        warped, inside = aligned_support(rgb_j, g.H, (h, w))
+        if p.descriptors.color_normalise:
+            warped = normalise_aligned(rgb_i, warped, inside > 0)
+        if p.patches.homography_reach_frac > 0:
+            inside = inside * (reach_distance(g.inliers_ref, (h, w)) <= p.patches.homography_reach_frac * max(h, w))
+        r = dataclasses.replace(r, sweep=aligned_pair(i, j, rgb_i, warped, inside.astype(np.float32), p.sweep))
     return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
 
 
@@ -629,6 +650,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                                     g.inliers_ref, g.inliers_sup), str(params.geometry.peer_homography)]
             if (i, j) in swept:
                 parts += [params.sweep_key_material(), _digest_arrays(*cam(i), *cam(j), inv[i])]
+            elif g.is_homography and params.sweep.enabled and params.sweep.direct_homography:
+                parts += [params.sweep_key_material(), "aligned"]
             pkey[(i, j)] = cache_mod.key("pair", *parts)
 
         def load(ij, data):
