@@ -211,6 +211,9 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
     cost = float(f.per_support[s, gy, gx])
     fused_curve = _fused_curve(res, i, sw, gy, gx)
     plane = int(f.plane[gy, gx])
+    if sp_.kind == "aligned" or res.cameras is None or len(sp_.inv_depths) == 0:
+        # a direct comparison after the homography: no depth, the point is H x (ev.point)
+        return dataclasses.replace(ev, cost=cost, curve=curve, fused_curve=fused_curve)
     cams = res.cameras
     ray = cams.R[i].T @ (np.linalg.inv(cams.K[i]) @ np.array([xy[0], xy[1], 1.0]))
 
