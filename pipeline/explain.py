@@ -211,21 +211,22 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
     cost = float(f.per_support[s, gy, gx])
     fused_curve = _fused_curve(res, i, sw, gy, gx)
     plane = int(f.plane[gy, gx])
-    if sp_.kind == "aligned" or res.cameras is None or len(sp_.inv_depths) == 0:
+    if sp_.kind == "aligned" or res.cameras is None or len(sp_.planes) == 0:
         # a direct comparison after the homography: no depth, the point is H x (ev.point)
         return dataclasses.replace(ev, cost=cost, curve=curve, fused_curve=fused_curve)
     cams = res.cameras
     ray = cams.R[i].T @ (np.linalg.inv(cams.K[i]) @ np.array([xy[0], xy[1], 1.0]))
 
-    def project(inv_depth: float) -> np.ndarray:
-        X = np.append(cams.C[i] + ray / inv_depth, 1.0) if inv_depth > 0 else np.append(ray, 0.0)
-        P = cams.P(j)
-        q = P @ X
+    def project(z: float) -> np.ndarray:
+        """The point at depth z (reference camera) on the pixel's ray, in the support."""
+        X = np.append(cams.C[i] + ray * z, 1.0) if np.isfinite(z) else np.append(ray, 0.0)
+        q = cams.P(j) @ X
         return q[:2] / q[2] if abs(q[2]) > 1e-12 else np.array([np.nan, np.nan])
-    inv = sp_.inv_depths
-    strip = np.stack([project(inv[0]), project(inv[-1])])
-    depth_point = project(inv[plane]) if plane >= 0 else None
-    depth = float(1.0 / inv[plane]) if plane >= 0 and inv[plane] > 0 else float("inf")
+    # the strip the depths allow: from the nearest plane parallel to the image to infinity
+    fronto = sp_.planes[(sp_.planes[:, 0] == 0) & (sp_.planes[:, 1] == 0)]
+    strip = np.stack([project(float(fronto[0, 3])), project(float(fronto[-1, 3]))])
+    depth = float(sp_.depth_at(np.array([plane]), xy[None], cams.K[i])[0]) if plane >= 0 else float("nan")
+    depth_point = project(depth) if plane >= 0 else None
     return dataclasses.replace(ev, strip=strip, depth_point=depth_point, depth=depth, cost=cost, curve=curve,
                                fused_curve=fused_curve)
 

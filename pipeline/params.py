@@ -109,6 +109,7 @@ class SweepParams:
     enabled: bool = False
     scale: float = 0.5                 # sweep grid / working resolution (320 x 240 at 640); EVIDENCE_NOTES 10
     n_planes: int = 150                # planes uniform in inverse depth over the reference's depth range
+    ground_planes: int = 0             # planes parallel to the set's ground (when it has one), ground to camera
     window: int = 7                    # SSIM window on the sweep grid (14 px at 640)
     lab_weights: tuple[float, float, float] = (1.0, 2.0, 2.0)   # L, a, b: colour counts double
     direct_homography: bool = True     # homography pairs without cameras: SSIM of the aligned pixels as well
@@ -172,7 +173,7 @@ PRESETS: dict[str, Params] = {
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
                                   calib_scale=1.12, calib_offset=0.2),
-        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30),
+        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=48),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
     "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),

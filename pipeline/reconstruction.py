@@ -633,3 +633,47 @@ def _quaternion(R: np.ndarray) -> np.ndarray:
     q = np.array(q)
     q /= np.linalg.norm(q)
     return q if q[0] >= 0 else -q
+
+
+def ground_plane(cams: SetCameras, min_share: float = 0.2, max_tilt_deg: float = 30.0, seed: int = 0
+                 ) -> tuple[np.ndarray, float] | None:
+    """The set's ground, if its sparse points show one: (n_w unit normal pointing up, d_w) with
+    n_w . X + d_w = 0 on the ground, or None.
+
+    The dominant plane of the sparse points (RANSAC, a 1 % band of the scene's extent) is the
+    ground when it holds at least `min_share` of the points, its normal is within `max_tilt_deg`
+    of the cameras' mean "up" (the negated image y axis), and most cameras are above it.
+    """
+    X = cams.points
+    reg = np.nonzero(cams.registered)[0]
+    if len(X) < 30 or len(reg) < 2:
+        return None
+    up = -np.mean([cams.R[k][1] for k in reg], axis=0)
+    up /= np.linalg.norm(up)
+    band = 0.01 * float(np.median(np.linalg.norm(X - np.median(X, axis=0), axis=1)))
+    rng = np.random.default_rng(seed)
+    best, best_n, best_d = 0, None, None
+    for _ in range(400):                      # hypotheses, each tested on all points at once
+        s = X[rng.choice(len(X), 3, replace=False)]
+        n = np.cross(s[1] - s[0], s[2] - s[0])
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        n /= np.linalg.norm(n)
+        if n @ up < 0:
+            n = -n
+        if np.degrees(np.arccos(np.clip(n @ up, -1, 1))) > max_tilt_deg:
+            continue
+        d = -n @ s[0]
+        k = int(np.sum(np.abs(X @ n + d) < band))
+        if k > best:
+            best, best_n, best_d = k, n, d
+    if best_n is None or best < min_share * len(X):
+        return None
+    inl = np.abs(X @ best_n + best_d) < band                 # refit on the inliers (least squares)
+    c = X[inl].mean(axis=0)
+    n = np.linalg.svd(X[inl] - c)[2][-1]
+    n = n if n @ up >= 0 else -n
+    d = float(-n @ c)
+    if np.mean(cams.C[reg] @ n + d > 0) < 0.5:
+        return None
+    return n, d

@@ -244,8 +244,15 @@ def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float, focu
                     static=True)
         f = res.fused(i, res.supports[i]) if res.params.sweep.enabled else None
         if f is not None:
-            pair = next(res.pair_results[(i, j)].sweep for j in res.supports[i] if res.is_swept(i, j))
-            inv = np.where(f.plane >= 0, pair.inv_depths[np.maximum(f.plane, 0)], 0.0)
+            pair = next((res.pair_results[(i, j)].sweep for j in res.supports[i] if res.is_swept(i, j)
+                         and res.pair_results[(i, j)].sweep.kind == "sweep"), None)
+        if f is not None and pair is not None:
+            gh, gw = f.plane.shape
+            gy, gx = np.mgrid[0:gh, 0:gw]
+            h, w = p.size                                    # grid pixel -> working pixel centres
+            xy = np.column_stack([(gx.ravel() + 0.5) * w / gw - 0.5, (gy.ravel() + 0.5) * h / gh - 0.5])
+            z = pair.depth_at(np.maximum(f.plane.ravel(), 0), xy, res.cameras.K[i]).reshape(gh, gw)
+            inv = np.where((f.plane >= 0) & np.isfinite(z), 1.0 / np.maximum(z, 1e-9), 0.0)
             rec.log(f"{base}/depth", rr.DepthImage(np.round(inv / max(inv.max(), 1e-9) * 255).astype(np.uint8),
                                                    meter=255.0, colormap="viridis"), static=True)
         if res.params.sweep.enabled and i != focus:

@@ -29,13 +29,13 @@ from .matching import PairResult, match_pair
 from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
-from .reconstruction import SetCameras, apply_reconstruction, reconstruct
+from .reconstruction import SetCameras, apply_reconstruction, ground_plane, reconstruct
 from .store import PairStore, light_of
 from .support import PairGeometry, cap_supports, estimate_pair, support_sets, triplet_check
 from .peer import PeerPair, difference, dynamic_from_differences
 from .homography import aligned_support, reach_distance
 from .photometric import normalise_aligned
-from .sweep import Fused, aligned_pair, fuse, inverse_depths, sweep_pair
+from .sweep import Fused, aligned_pair, fuse, inverse_depths, reference_planes, sweep_pair
 
 Progress = Callable[[str, int, int], None]
 
@@ -640,8 +640,14 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         ordered = sorted(((i, j) for i in refs for j in supports[i]), key=lambda ij: ij[0] != first)
         swept = {ij for ij in ordered if _sweepable(ij, pairs[ij], cameras, params, photos[ij[0]].size)}
         cam = (lambda k: (cameras.K[k], cameras.R[k], cameras.C[k])) if cameras is not None else None
-        inv = {i: inverse_depths((cameras.depth_range[i][0], np.inf), params.sweep.n_planes)
-               for i in {i for i, _ in swept}}
+        ground = ground_plane(cameras) if swept and params.sweep.ground_planes > 0 else None
+        inv = {}
+        for i in {i for i, _ in swept}:
+            g_i = None
+            if ground is not None and ground[0] @ cameras.C[i] + ground[1] > 0:     # the camera above the ground
+                g_i = (cameras.R[i] @ ground[0], float(ground[0] @ cameras.C[i] + ground[1]))
+            inv[i] = reference_planes(inverse_depths((cameras.depth_range[i][0], np.inf), params.sweep.n_planes),
+                                      g_i, params.sweep.ground_planes)
         pkey = {}
         for i, j in ordered:
             g = pairs[(i, j)]

@@ -41,16 +41,26 @@ class SweepPair:
     depth-independent cost map (kind "aligned", D = 1), at the sweep's resolution (h, w).
 
     cost: (h, w, D) uint8, cost * 254 or UNSEEN (planes last: the fusion reads a pixel's planes
-    contiguously); inv_depths: (D,) float64 inverse depths of the
-    planes in the reference camera (empty for "aligned"); seconds: compute time.
+    contiguously); planes: (D, 4) float64 the planes n . X = d in the reference camera's frame
+    (n unit, d = inf for the plane at infinity; see reference_planes), empty for "aligned";
+    seconds: compute time.
     """
 
     ref: int
     sup: int
     cost: np.ndarray
-    inv_depths: np.ndarray
+    planes: np.ndarray
     seconds: float
     kind: str = "sweep"
+
+    def depth_at(self, plane: np.ndarray, xy: np.ndarray, K: np.ndarray) -> np.ndarray:
+        """Depth (reference camera z) of the pixels xy (N, 2) on the given plane indices (N,):
+        (N,) float64, inf on the plane at infinity."""
+        r = np.column_stack([np.asarray(xy, float), np.ones(len(xy))]) @ np.linalg.inv(K).T      # z = 1
+        P = self.planes[np.asarray(plane)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = P[:, 3] / np.sum(P[:, :3] * r, axis=1)
+        return np.where(np.isfinite(P[:, 3]) & (z > 0), z, np.inf)
 
 
 @dataclass(frozen=True)
@@ -90,15 +100,38 @@ def inverse_depths(depth_range: tuple[float, float], n: int) -> np.ndarray:
     return np.linspace(1.0 / near, 0.0 if not np.isfinite(far) else 1.0 / far, n)
 
 
-def plane_homographies(K_i, R_i, C_i, K_j, R_j, C_j, inv_depths: np.ndarray) -> np.ndarray:
+def reference_planes(inv_depths: np.ndarray, ground: tuple[np.ndarray, float] | None = None,
+                     n_ground: int = 0) -> np.ndarray:
+    """(D, 4) planes n . X = d in the reference camera's frame: first one parallel to the image
+    (n = (0, 0, 1), d = 1 / inv_depth; inf for inv_depth 0), then, when `ground` = (n_c, height)
+    gives the ground plane (unit normal n_c pointing up, in the camera frame, and the camera's
+    height above it), `n_ground` planes parallel to the ground from it up to just below the camera.
+
+    Near, slanted ground is where planes parallel to the image fail: a window on it spans many
+    depths (measured on courtyard_static, the largest false positives of the depth cue)."""
+    inv = np.asarray(inv_depths, float)
+    with np.errstate(divide="ignore"):
+        d = np.where(inv > 0, 1.0 / np.where(inv > 0, inv, 1.0), np.inf)
+    planes = [np.column_stack([np.zeros((len(inv), 2)), np.ones(len(inv)), d])]
+    if ground is not None and n_ground > 0:
+        n_c, height = ground
+        heights = np.linspace(0.0, 0.95 * height, n_ground)
+        planes.append(np.column_stack([np.tile(n_c, (n_ground, 1)), heights - height]))
+    return np.concatenate(planes)
+
+
+def plane_homographies(K_i, R_i, C_i, K_j, R_j, C_j, planes: np.ndarray) -> np.ndarray:
     """(D, 3, 3) homographies mapping reference pixels to support pixels for the planes
-    z_ref = 1 / inv_depth (fronto-parallel to the reference): H = K_j (R + t n^T / d) K_i^-1 with
-    X_j = R X_i + t the relative pose and n = (0, 0, 1) (HZ 13.1)."""
+    n . X_i = d ((D, 4), reference_planes): H = K_j (R + t n^T / d) K_i^-1 with X_j = R X_i + t
+    the relative pose (HZ 13.1); d = inf is the plane at infinity, H = K_j R K_i^-1."""
     R = R_j @ R_i.T
     t = R_j @ (C_i - C_j)
-    n = np.array([0.0, 0.0, 1.0])
     Ki_inv = np.linalg.inv(K_i)
-    return np.stack([K_j @ (R + np.outer(t, n) * q) @ Ki_inv for q in inv_depths])
+    out = []
+    for n0, n1, n2, d in planes:
+        q = 0.0 if not np.isfinite(d) else 1.0 / d
+        out.append(K_j @ (R + np.outer(t, (n0, n1, n2)) * q) @ Ki_inv)
+    return np.stack(out)
 
 
 # ----------------------------------------------------------------------------- images
@@ -168,29 +201,33 @@ def warp(sup_lab: np.ndarray, H_grid: np.ndarray, grid: tuple[int, int]) -> tupl
 
 # ----------------------------------------------------------------------------- per pair
 def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam_ref: tuple, cam_sup: tuple,
-               inv_depths: np.ndarray, sp: SweepParams) -> SweepPair:
+               planes: np.ndarray, sp: SweepParams) -> SweepPair:
     """Cost volume of one support over the reference's planes.
 
     rgb_*: (h, w, 3) uint8 working-resolution photos (the support's colours already mapped to the
-    reference's, photometric.py); cam_*: (K, R, C) at working resolution; inv_depths: (D,).
+    reference's, photometric.py); cam_*: (K, R, C) at working resolution; planes: (D, 4)
+    (reference_planes), or (D,) inverse depths of planes parallel to the image.
     """
     t0 = time.perf_counter()
+    planes = np.asarray(planes, float)
+    if planes.ndim == 1:
+        planes = reference_planes(planes)
     g_ref, g_sup = sweep_size(rgb_ref.shape[:2], sp), sweep_size(rgb_sup.shape[:2], sp)
     A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
-    Hs = plane_homographies(*cam_ref, *cam_sup, inv_depths)
+    Hs = plane_homographies(*cam_ref, *cam_sup, planes)
     Hs = A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None]
     rs = ref_stats(lab_image(rgb_ref, g_ref, sp), sp.window)
     sup_lab = lab_image(rgb_sup, g_sup, sp)
-    planes = np.empty((len(Hs), *g_ref), np.uint8)
+    per_plane = np.empty((len(Hs), *g_ref), np.uint8)
     k = sp.window
     lum_l = 1.0 if sp.lightness_mean else 0.0
     for d, H in enumerate(Hs):          # one warp and comparison per plane (a hypothesis, not a pixel)
         img, valid = warp(sup_lab, H, g_ref)
         # window sums by box filters (OpenCV), then SSIM and quantisation in one compiled pass
-        planes[d] = _ssim_kernel(rs.lab, rs.mean, rs.var, _box(img, k), _box(img * img, k), _box(rs.lab * img, k),
-                                 _box(valid, k), float(sp.ssim_c1), float(sp.ssim_c2), lum_l)
-    cost = np.ascontiguousarray(planes.transpose(1, 2, 0))
-    return SweepPair(ref, sup, cost, np.asarray(inv_depths, np.float64), time.perf_counter() - t0)
+        per_plane[d] = _ssim_kernel(rs.lab, rs.mean, rs.var, _box(img, k), _box(img * img, k), _box(rs.lab * img, k),
+                                    _box(valid, k), float(sp.ssim_c1), float(sp.ssim_c2), lum_l)
+    cost = np.ascontiguousarray(per_plane.transpose(1, 2, 0))
+    return SweepPair(ref, sup, cost, planes, time.perf_counter() - t0)
 
 
 def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.ndarray, valid: np.ndarray,
@@ -204,7 +241,7 @@ def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.nd
     sup = lab_image(rgb_sup_aligned, g, sp)
     vis = cv2.resize(valid.astype(np.float32), (g[1], g[0]), interpolation=cv2.INTER_AREA)
     cost = _quantise(ssim_cost(rs, sup, (vis > 0.999).astype(np.float32), sp.window, sp))[:, :, None]
-    return SweepPair(ref, sup, cost, np.zeros(0), time.perf_counter() - t0, kind="aligned")
+    return SweepPair(ref, sup, cost, np.zeros((0, 4)), time.perf_counter() - t0, kind="aligned")
 
 
 # ----------------------------------------------------------------------------- per reference
