@@ -5,11 +5,17 @@ asked for) and the shared `TermCache`. Every browser tab is a `Session` with its
 (`client.gui`), scene (`client.scene`) and state; its callbacks only record the new state and
 ask a `Redrawer` to draw, and the redrawer always draws the latest state, so rapid slider moves
 never queue up stale redraws. A tab that disconnects stops its redrawers and is forgotten.
+
+The photo stays put: viser's camera orbits on a left drag over empty space and on arrow keys.
+Keys pressed on a focused control are kept from reaching the camera (a small key listener in
+the page, KEYS_STAY_WITH_CONTROLS), and the server puts any turned camera back to look straight
+at the photo, keeping its pan and zoom (Session._straighten).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import html
 import io
 import json
 import threading
@@ -28,13 +34,53 @@ from pipeline.cache import PairCache, atomic_write_bytes
 from pipeline.evaluate import THRESHOLDS
 from pipeline.loading import PhotoSet
 from pipeline.output import to_original
-from pipeline.params import PRESETS
+from pipeline.params import PRESETS, get_preset
 
 from . import compose, render
-from .model import Score, SetModel, Settings, TermCache, gt_at_working, score, usable_supports
+from .model import (Score, SetBest, SetModel, Settings, TermCache, gt_at_working, score, set_best_threshold,
+                    usable_supports)
 
-NO_EVIDENCE = {"neutral (ours)": "neutral", "no match (paper)": "no_match"}
+NO_EVIDENCE = {"no opinion, 0.5 (ours)": "neutral", "no match (paper)": "no_match"}
 BLANK = np.full((8, 8, 3), 255, np.uint8)
+COMPUTING = "computing…"
+MAP_OPTION = "the map (reference)"
+PIXEL_HINT = "**Click a point of the photo** to see why it is marked (or not): what each support photo said, " \
+             "and how their answers add up."
+MAIN_WIDTH = 340            # the right (controls) panel, px
+SIDE_WIDTH = 400            # the left (evidence) panel, px
+KEY_WIDTH = 312             # pictures at the width they are shown at (panel less its padding)
+CHART_WIDTH = 370
+BRAND_RGB = (24, 100, 171)  # buttons, active tabs: white on it is 6:1
+STRAIGHT_COS = float(np.cos(np.deg2rad(0.3)))      # a camera turned more than this is put back
+
+HINT_PRESET = ("default: ours (the paper's method plus a depth cue, homography pairs, colour normalisation and "
+               "smoothing); paper: the paper's method unchanged; peer-homography: a simple 2-D baseline (align "
+               "each photo by one homography and compare colours), for comparison.")
+HINT_REMAP = ("How far one support may push the result: each P(x|I_s) is squeezed into this range (low, high) "
+              "before the supports are combined, so that no single photo decides alone (§3.2; paper: 0.3, 0.7).")
+HINT_NOEV = ("What a support says where it does not see the point: no opinion (0.5, ours), or no match, which "
+             "reads as moving (the paper, §3.1).")
+HINT_BEST_IMG = ("Set the threshold that gives this photo the highest Jaccard with its ground truth "
+                 "(§4.2, optimised per image).")
+HINT_BEST_SET = ("Set the one threshold that gives the whole set the highest mean Jaccard, over the maps that "
+                 "exist (§4.2, optimised per set).")
+
+# Controls in light grey on white (Mantine's 'dimmed', 3.3:1) read badly: a darker grey (8.6:1).
+PAGE_STYLE = """<style>
+:root, :root[data-mantine-color-scheme="light"] { --mantine-color-dimmed: #454c53 !important; }
+.u-legend, .u-legend .u-value { color: #212529 !important; }
+</style>"""
+# viser moves the camera on arrow keys (orbit) and W/A/S/D/Q/E unless a text field has the focus,
+# so an arrow key on a focused slider moved both. Keys whose target is a control (anything but
+# the page itself) stop at <body>: React has already handled them at its root, below it, and
+# viser's camera listener on `document` never sees them. viser runs no <script> from HTML, so
+# the listener is installed by an image that fails to load (once per page).
+_KEYS_JS = ("if(!window.__crowdcamKeys){window.__crowdcamKeys=1;"
+            "var K={ArrowUp:1,ArrowDown:1,ArrowLeft:1,ArrowRight:1,KeyW:1,KeyA:1,KeyS:1,KeyD:1,KeyQ:1,KeyE:1};"
+            "document.body.addEventListener('keydown',function(e){var t=e.target;"
+            "if(K[e.code]&&t&&t!==document.body&&t.tagName!=='CANVAS'){e.stopPropagation();}});}")
+KEYS_STAY_WITH_CONTROLS = (f'<img src="data:," alt="" style="display:none" '
+                           f'onerror="{html.escape(_KEYS_JS, quote=True)}">')
 
 
 class Redrawer:
@@ -79,6 +125,10 @@ class Redrawer:
     def wait_idle(self, timeout: float = 30.0) -> bool:
         return self._idle.wait(timeout)
 
+    def idle(self) -> bool:
+        """Nothing to draw and nothing being drawn, now."""
+        return self._idle.is_set()
+
     def stop(self) -> None:
         self._stopped = True
         self._wake.set()
@@ -114,7 +164,7 @@ class Inspector:
         self.rerun_worker = ThreadPoolExecutor(1, thread_name_prefix="crowdcam-rerun")
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.gui.configure_theme(control_width="large", show_share_button=False, show_logo=False,
-                                        titlebar_content=None)
+                                        titlebar_content=None, brand_color=BRAND_RGB)
         cam = self.server.initial_camera           # straight at the photo, up = -y (image rows go down)
         cam.position, cam.look_at, cam.up = (0.0, 0.0, -1.6), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0)
         self.server.scene.set_up_direction("-y")
@@ -186,8 +236,14 @@ class Inspector:
 
 
 class Session:
-    """One browser tab: its GUI, its scene, its state and its two redrawers (fast: the main view
-    and per-support maps; slow: the explained pixel and the support sweep)."""
+    """One browser tab: its GUI, its scene, its state and its two redrawers (fast: the main view,
+    its key and numbers, per-support maps; slow: the explained pixel, the support sweep and the
+    set-wide best threshold).
+
+    Never stale: a change of reference or preset bumps `_epoch` and clears every plot, text and
+    link of the tab at once (under `_pub`, showing "computing…" where a value is not ready); a
+    draw that started before publishes nothing (it checks the epoch under the same lock). Slow
+    draws also check `_version`, bumped with every settings change that asks them to redraw."""
 
     def __init__(self, app: Inspector, client: viser.ClientHandle):
         self.app = app
@@ -198,17 +254,29 @@ class Session:
         self.unticked: dict[int, set[int]] = {}           # per reference: supports switched off
         self.ref_chosen = False                             # the user picked a reference
         self.pixel: np.ndarray | None = None
+        self.large: int | None = None                       # the support shown large, or None: the map
         self.dyn: np.ndarray | None = None                  # the map on screen
         self.report: compose.PixelReport | None = None
         self.score: Score | None = None
+        self.set_best: SetBest | None = None
+        self._set_best_key_done = None
+        self.notice = compose.Notice("")
         self.ready_count = -1
+        self.canvas_width = 0
+        self.camera_reports = 0                             # camera reports handled (tests)
         self.main_ms: list[float] = []                      # server-side redraw times of the main view
         self.events: list[tuple[str, object]] = []          # what the tab did, for tests and debugging
+        self.hold_slow: threading.Event | None = None       # tests: a slow draw waits here before publishing
+        self.slow_waiting = threading.Event()
         self._boxes: dict[int, viser.GuiCheckboxHandle] = {}
         self._box_ref = -1
         self._fit_aspect = 0.0
+        self._img_aspect = 0.0
         self._closed = False
         self._state_lock = threading.Lock()
+        self._pub = threading.RLock()                       # publishing to the page vs. clearing it
+        self._epoch = 0                                     # reference and preset
+        self._version = 0                                   # any settings the slow views depend on
         self._build()
         self.fast = Redrawer(f"tab{client.client_id}-fast", self._draw_fast)
         self.slow = Redrawer(f"tab{client.client_id}-slow", self._draw_slow)
@@ -217,104 +285,141 @@ class Session:
     def _build(self) -> None:
         app, gui, s = self.app, self.client.gui, self.settings
         ps = app.photo_set
+        has_gt = bool(app.gts)
         gui.main_panel.dock_right()
-        gui.main_panel.set_width(400)
+        gui.main_panel.set_width(MAIN_WIDTH)
+        gui.add_html(PAGE_STYLE + KEYS_STAY_WITH_CONTROLS)
         self.md_title = gui.add_markdown(f"**{ps.name}** · {self.n} photos · working size {app.max_side} px")
         self.progress = gui.add_progress_bar(0.0, animated=True)
         self.md_status = gui.add_markdown("Starting…")
+        self.md_caption = gui.add_markdown(
+            "**Colours: blue = static, red = moving** (P_dynamic, how likely each point moved). "
+            "Red outline: marked moving" + ("; green: ground truth" if has_gt else "") +
+            ". **Click a point to see why it is marked.**")
+        self.img_key = gui.add_image(render.colour_key(KEY_WIDTH, "dynamic", threshold=s.threshold,
+                                                       outlines=(True, has_gt)), format="png")
+        self.md_notice = gui.add_markdown("", visible=False)
+        self.btn_best_img_top = gui.add_button("Use this photo's best threshold", visible=False,
+                                               hint=HINT_BEST_IMG, color="blue")
+        self.btn_best_set_top = gui.add_button("Use the set's best threshold", visible=False, hint=HINT_BEST_SET)
         self.dd_ref = gui.add_dropdown("Reference", options=app.stems, initial_value=app.stems[s.ref],
-                                       hint="The photo whose moving regions are shown")
-        self.dd_preset = gui.add_dropdown("Preset", options=list(PRESETS), initial_value=s.preset,
-                                          hint="default: ours; paper: the paper's method unchanged")
+                                       hint="The photo whose moving regions are shown; its supports are the other "
+                                            "photos whose geometry with it can be trusted (§3).")
+        self.dd_preset = gui.add_dropdown("Preset", options=list(PRESETS), initial_value=s.preset, hint=HINT_PRESET)
         self.f_sup = gui.add_folder("Supports")
         with self.f_sup:
             self.md_sup = gui.add_markdown("", order=1e6)
         with gui.add_folder("Map"):
-            self.sl_thr = gui.add_slider("Threshold", min=0.0, max=1.0, step=0.01, initial_value=s.threshold,
-                                         hint="A pixel is dynamic when P_dynamic > threshold")
-            self.sl_remap = gui.add_multi_slider("Remap range", min=0.0, max=1.0, step=0.01,
-                                                 initial_value=tuple(s.remap), min_range=0.02,
-                                                 hint="§3.2: P(x|I_s) is mapped to this range before the product")
+            self.sl_thr = gui.add_slider("Threshold", min=0.0, max=1.0, step=0.005, initial_value=s.threshold,
+                                         hint="A point is marked moving when P_dynamic is above this value "
+                                              "(§4.2 optimises it per photo and per set).")
+            self.vec_remap = gui.add_vector2("Remap range", initial_value=tuple(s.remap), min=(0.0, 0.0),
+                                             max=(1.0, 1.0), step=0.01, hint=HINT_REMAP)
             self.sl_whog = gui.add_slider("HOG weight", min=0.0, max=4.0, step=0.1, initial_value=s.w_hog,
-                                          hint="Eq. 2 weight of the HOG similarity")
+                                          hint="How much the shape comparison (HOG: histograms of gradient "
+                                               "directions) counts in a support's answer (Eq. 2; paper: 2).")
             self.sl_wcol = gui.add_slider("Colour weight", min=0.0, max=4.0, step=0.1, initial_value=s.w_color,
-                                          hint="Eq. 2 weight of the hue-saturation histogram similarity")
+                                          hint="How much the colour comparison (hue-saturation histograms) counts "
+                                               "in a support's answer (Eq. 2; paper: 1).")
             self.dd_noev = gui.add_dropdown("No evidence", options=list(NO_EVIDENCE),
-                                            initial_value=_noev_label(s.no_evidence),
-                                            hint="A patch with no candidate in the support counts as …")
-            self.cb_refine = gui.add_checkbox("Refine (guided filter)", initial_value=s.refine)
+                                            initial_value=_noev_label(s.no_evidence), hint=HINT_NOEV)
+            self.cb_refine = gui.add_checkbox("Smooth (guided filter)", initial_value=s.refine,
+                                              hint="Smooth the map along the photo's edges (a guided filter; "
+                                                   "ours, not in the paper).")
         with gui.add_folder("View"):
-            self.cb_photo = gui.add_checkbox("Photo", initial_value=True)
-            self.cb_heat = gui.add_checkbox("Heat map", initial_value=True)
-            self.cb_mask = gui.add_checkbox("Mask", initial_value=True)
-            self.cb_gt = gui.add_checkbox("Ground truth", initial_value=bool(app.gts), disabled=not app.gts,
-                                          hint="green outline" if app.gts else "this set has no ground truth")
-            self.sl_opacity = gui.add_slider("Opacity", min=0.0, max=1.0, step=0.05, initial_value=0.55)
-            self.btn_reset = gui.add_button("Reset view")
-        self.f_eval = gui.add_folder("Evaluation", visible=bool(app.gts))
+            self.cb_photo = gui.add_checkbox("Photo", initial_value=True, hint="the photo under the colours")
+            self.cb_heat = gui.add_checkbox("Colours", initial_value=True,
+                                            hint="P_dynamic as colours: blue static, red moving")
+            self.cb_mask = gui.add_checkbox("Mask", initial_value=True,
+                                            hint="red outline: the points above the threshold")
+            self.cb_gt = gui.add_checkbox("Ground truth", initial_value=has_gt, disabled=not has_gt,
+                                          hint="green outline: what really moved" if has_gt
+                                          else "this set has no ground truth")
+            self.sl_opacity = gui.add_slider("Opacity", min=0.0, max=1.0, step=0.05, initial_value=0.55,
+                                             hint="how strongly the colours cover the photo")
+            self.btn_reset = gui.add_button("Reset view", hint="look straight at the whole photo again")
+        self.f_eval = gui.add_folder("Evaluation", visible=has_gt)
         with self.f_eval:
             self.md_eval = gui.add_markdown("")
+            self.btn_best_img = gui.add_button("Use this photo's best threshold", disabled=True, hint=HINT_BEST_IMG)
+            self.btn_best_set = gui.add_button("Use the set's best threshold", disabled=True, hint=HINT_BEST_SET)
             self.plot_eval = gui.add_uplot(
-                data=(THRESHOLDS, np.zeros_like(THRESHOLDS), np.full_like(THRESHOLDS, np.nan)),
-                series=(vu.Series(label="threshold"), vu.Series(label="Jaccard", stroke="#1f6feb", width=2),
-                        vu.Series(label="current", stroke="#e5534b", width=2,
-                                  points={"show": True, "size": 9, "fill": "#e5534b"})),
+                data=(THRESHOLDS, np.full_like(THRESHOLDS, np.nan), np.full_like(THRESHOLDS, np.nan)),
+                series=(vu.Series(label="threshold"), vu.Series(label="Jaccard", stroke="#1f5fbf", width=2),
+                        vu.Series(label="current", stroke="#c92a2a", width=2,
+                                  points={"show": True, "size": 9, "fill": "#c92a2a"})),
                 scales={"x": vu.Scale(time=False, range=(0.0, 1.0)), "y": vu.Scale(range=(0.0, 1.0))},
+                axes=(vu.Axis(label="threshold", stroke="#212529"), vu.Axis(label="Jaccard", stroke="#212529")),
                 title="Jaccard vs threshold", aspect=1.8)
         with gui.add_folder("Export and Rerun"):
             self.btn_npy = gui.add_button("Download map (.npy)", hint="P_dynamic at the photo's size, float32")
             self.btn_png = gui.add_button("Download mask (.png)", hint="the mask at the current threshold")
             self.btn_save = gui.add_button("Save to output folder", hint=str(self.app.out_dir))
-            self.btn_rerun = gui.add_button("Open in Rerun", hint="record this reference and open Rerun's viewer")
+            self.btn_rerun = gui.add_button("Open in Rerun", hint="record this reference (and the clicked point) "
+                                                                  "and open Rerun's viewer")
             self.md_export = gui.add_markdown("")
 
         self.panel = gui.add_panel()
-        with self.panel.add_tab("Supports"):
-            gui.add_markdown("P(x|I_s) per support: **blue** = a match was found (static), **red** = none "
-                             "(dynamic). Greyed: switched off. F = epipolar pair, H = homography pair.")
-            self.img_sup = gui.add_image(BLANK, label="per-support matching maps", format="jpeg", jpeg_quality=85)
         with self.panel.add_tab("Pixel"):
-            self.md_pixel = gui.add_markdown("Click a point of the reference image to see the evidence behind it.")
-            self.img_bars = gui.add_image(BLANK, label="P(x|I_s) per support", format="png", visible=False)
-            self.img_evidence = gui.add_image(BLANK, label="where the pixel was searched", format="jpeg",
-                                              jpeg_quality=85, visible=False)
-            gui.add_markdown("Yellow: the pixel's epipolar line (or, for a homography pair, where H puts it "
-                             "and the parallax search window). Green: best HOG candidate; orange: best colour "
-                             "candidate, for the covering patch nearest the pixel.")
+            self.md_pixel = gui.add_markdown(PIXEL_HINT)
+            self.dd_large = gui.add_dropdown("Show large", options=[MAP_OPTION], initial_value=MAP_OPTION,
+                                             disabled=True, hint="draw one support's evidence for the clicked "
+                                                                 "point big, in the main view")
+            self.img_fusion = gui.add_image(BLANK, format="png", visible=False)
+            self.md_fusion = gui.add_markdown("")
+            with gui.add_folder("What the numbers mean", expand_by_default=False):
+                gui.add_markdown(compose.HELP)
+            self.md_evidence = gui.add_markdown("")
+            self.img_evidence = gui.add_image(BLANK, format="jpeg", jpeg_quality=85, visible=False)
+            self.img_lines = gui.add_image(BLANK, format="png", visible=False)
+        with self.panel.add_tab("Supports"):
+            gui.add_markdown("Each support's answer, P(x|I_s), drawn as 1 − P: **blue** = it found a match "
+                             "(static), **red** = none (moving), green = no opinion. Greyed: switched off. "
+                             "F = epipolar pair, H = homography pair.")
+            self.img_sup = gui.add_image(render.message(COMPUTING), format="jpeg", jpeg_quality=85)
         with self.panel.add_tab("Sweep"):
             self.md_sweep = gui.add_markdown("The map as supports are added one by one (the paper's Fig. 5).")
-            self.img_sweep = gui.add_image(BLANK, label="support sweep", format="jpeg", jpeg_quality=85)
+            self.img_sweep = gui.add_image(render.message(COMPUTING), format="jpeg", jpeg_quality=85)
             self.plot_sweep = gui.add_uplot(
                 data=(np.array([1.0, 2.0]), np.full(2, np.nan), np.full(2, np.nan)),
-                series=(vu.Series(label="supports"), vu.Series(label="J at threshold", stroke="#e5534b", width=2),
-                        vu.Series(label="best J", stroke="#1f6feb", width=2)),
-                scales={"x": vu.Scale(time=False), "y": vu.Scale(range=(0.0, 1.0))},
+                series=(vu.Series(label="supports"), vu.Series(label="J at threshold", stroke="#c92a2a", width=2),
+                        vu.Series(label="best J", stroke="#1f5fbf", width=2)),
+                scales={"x": vu.Scale(time=False, range=(1.0, 2.0)), "y": vu.Scale(range=(0.0, 1.0))},
+                axes=(vu.Axis(label="supports", incrs=(1, 2, 5, 10, 20), stroke="#212529"),
+                      vu.Axis(label="Jaccard", stroke="#212529")),
                 title="Jaccard vs number of supports", aspect=1.8, visible=bool(self.app.gts))
         self.panel.dock_left()
-        self.panel.set_width(420)
+        self.panel.set_width(SIDE_WIDTH)
 
         rgb = self.app.photo_set.photos[s.ref].rgb
         self.client.scene.set_up_direction("-y")
-        self.scene_img = self.client.scene.add_image("/reference", rgb, render_width=rgb.shape[1] / rgb.shape[0],
+        self._img_aspect = rgb.shape[1] / rgb.shape[0]
+        self.scene_img = self.client.scene.add_image("/reference", rgb, render_width=self._img_aspect,
                                                      render_height=1.0, format="jpeg", jpeg_quality=88)
         self.scene_img.on_click(self._on_click)
         # a left drag on the photo must not turn it away (the camera orbits on empty space only)
         self.scene_img.on_drag("left")(lambda _ev: None)
 
-        for h in (self.sl_thr, self.sl_remap, self.sl_whog, self.sl_wcol, self.dd_noev, self.cb_refine,
+        for h in (self.sl_thr, self.vec_remap, self.sl_whog, self.sl_wcol, self.dd_noev, self.cb_refine,
                   self.cb_photo, self.cb_heat, self.cb_mask, self.cb_gt, self.sl_opacity):
             h.on_update(self._on_control)
         self.dd_ref.on_update(self._on_ref)
         self.dd_preset.on_update(self._on_preset)
+        self.dd_large.on_update(self._on_large)
         self.btn_reset.on_click(lambda _ev: self._fit_camera())
+        for b in (self.btn_best_img, self.btn_best_img_top):
+            b.on_click(lambda _ev: self._use_best("photo"))
+        for b in (self.btn_best_set, self.btn_best_set_top):
+            b.on_click(lambda _ev: self._use_best("set"))
         self.btn_npy.on_click(lambda _ev: self._download("npy"))
         self.btn_png.on_click(lambda _ev: self._download("png"))
         self.btn_save.on_click(lambda _ev: self._save())
-        self.btn_rerun.on_click(lambda _ev: self.app.rerun_worker.submit(self._open_rerun_safely))
+        self.btn_rerun.on_click(lambda _ev: self._ask_rerun())
         self.client.camera.on_update(self._on_camera)
 
     def start(self) -> None:
         self.settings = self._current_settings()
+        self._preset_controls(self.settings.preset)
         self._fit_camera()
         self.model_changed(self.app.model(self.settings.preset))
 
@@ -334,7 +439,7 @@ class Session:
             w_hog = w_col = 1.0
         sups = tuple(j for j in range(self.n) if j != s.ref and j not in self.unticked.get(s.ref, set()))
         return dataclasses.replace(s, supports=sups, threshold=float(self.sl_thr.value),
-                                   remap=tuple(float(v) for v in self.sl_remap.value), w_hog=w_hog, w_color=w_col,
+                                   remap=_remap_range(self.vec_remap.value), w_hog=w_hog, w_color=w_col,
                                    no_evidence=NO_EVIDENCE[self.dd_noev.value], refine=bool(self.cb_refine.value))
 
     def _on_control(self, _ev=None) -> None:
@@ -346,14 +451,20 @@ class Session:
             new = self.settings
         if new == old and self.layers == old_layers:
             return
-        self._record("settings", new)
         if dataclasses.replace(old, threshold=new.threshold) != new:      # the maps change
+            with self._pub:
+                self._version += 1
+                for b in (self.btn_best_set, self.btn_best_set_top):
+                    b.label, b.disabled = f"Use the set's best threshold ({COMPUTING})", True
             self.fast.request("main", "supports")
-            self.slow.request("sweep", "pixel")
+            self.slow.request("sweep", "pixel", "setbest")
         else:                                                             # threshold or view only
             self.fast.request("main")
             if new.threshold != old.threshold:
+                with self._pub:
+                    self._version += 1
                 self.slow.request("sweep", "pixel_text")
+        self._record("settings", new)           # last: a test that sees it finds the redraws asked for
 
     def _on_ref(self, _ev=None) -> None:
         ref = self.app.stems.index(self.dd_ref.value)
@@ -362,14 +473,11 @@ class Session:
         self.ref_chosen = True
         with self._state_lock:
             self.settings = dataclasses.replace(self.settings, ref=ref)
-            self.pixel, self.report = None, None
             self.settings = self._current_settings()
-        self._record("ref", self.app.stems[ref])
-        rgb = self.app.photo_set.photos[ref].rgb
-        self.scene_img.render_width = rgb.shape[1] / rgb.shape[0]
-        self._fit_camera()
+        self._clear(keep_pixel=False)
         self.fast.request("status", "main", "supports")
-        self.slow.request("sweep", "pixel")
+        self.slow.request("sweep", "setbest")
+        self._record("ref", self.app.stems[ref])
 
     def _on_preset(self, _ev=None) -> None:
         preset = self.dd_preset.value
@@ -378,30 +486,104 @@ class Session:
         fresh = Settings.for_preset(preset, self.settings.ref, self.app.max_side)
         with self._state_lock:
             self.settings = dataclasses.replace(fresh, supports=self.settings.supports)
-        self._record("preset", preset)
+        self._clear(keep_pixel=True)
         # the preset's own aggregation choices (these set the widgets, whose callbacks then agree)
-        self.sl_remap.value = tuple(fresh.remap)
+        self.vec_remap.value = tuple(fresh.remap)
         self.sl_whog.value, self.sl_wcol.value = fresh.w_hog, fresh.w_color
         self.dd_noev.value = _noev_label(fresh.no_evidence)
         self.cb_refine.value = fresh.refine
+        self._preset_controls(preset)
         self.ready_count = -1
         self.model_changed(self.app.model(preset))
-        self.fast.request("main", "supports")
-        self.slow.request("sweep", "pixel")
+        self.fast.request("status", "main", "supports")
+        self.slow.request("sweep", "pixel", "setbest")
+        self._record("preset", preset)
+
+    def _preset_controls(self, preset: str) -> None:
+        """The peer baseline has no Eq. 2 / Eq. 3: its remap, weights and no-evidence are off."""
+        peer = get_preset(preset).geometry.peer_homography
+        for h in (self.vec_remap, self.sl_whog, self.sl_wcol, self.dd_noev):
+            h.disabled = peer
+
+    def _clear(self, keep_pixel: bool) -> None:
+        """Another reference or preset: every view of the old one goes at once; what is not ready
+        says "computing…". The photo itself is shown right away."""
+        ref = self.settings.ref
+        rgb = self.app.photo_set.photos[ref].rgb
+        has_gt = self.app.stems[ref] in self.app.gts
+        with self._pub:
+            self._epoch += 1
+            self._version += 1
+            if not keep_pixel:
+                self.pixel = None
+            self.report, self.large, self.dyn, self.score = None, None, None, None
+            self.notice = compose.Notice("")
+            self._show_scene(rgb)
+            self.img_key.image = render.colour_key(KEY_WIDTH, "dynamic", threshold=self.settings.threshold,
+                                                   outlines=(True, bool(self.app.gts)))
+            self.md_notice.visible = False
+            self.btn_best_img_top.visible = self.btn_best_set_top.visible = False
+            self.md_pixel.content = PIXEL_HINT if self.pixel is None else f"Pixel: {COMPUTING}"
+            self.dd_large.options = [MAP_OPTION]
+            self.dd_large.value = MAP_OPTION
+            self.dd_large.disabled = True
+            self.img_fusion.visible = self.img_evidence.visible = self.img_lines.visible = False
+            self.md_fusion.content = self.md_evidence.content = ""
+            self.md_eval.content = COMPUTING if has_gt else (f"No ground truth for {self.app.stems[ref]}."
+                                                             if self.app.gts else "")
+            self.plot_eval.data = (THRESHOLDS, np.full_like(THRESHOLDS, np.nan), np.full_like(THRESHOLDS, np.nan))
+            self.btn_best_img.label, self.btn_best_img.disabled = f"Use this photo's best threshold ({COMPUTING})", True
+            self.img_sup.image = render.message(COMPUTING)
+            self.md_sweep.content = f"The map as supports are added one by one (the paper's Fig. 5): {COMPUTING}"
+            self.img_sweep.image = render.message(COMPUTING)
+            k = max(2, len(self._support_list(ref)))
+            self.plot_sweep.data = (np.arange(1.0, k + 1), np.full(k, np.nan), np.full(k, np.nan))
+            self.plot_sweep.scales = {"x": vu.Scale(time=False, range=(1.0, float(k))),
+                                      "y": vu.Scale(range=(0.0, 1.0))}
+            self.md_export.content = ""
+        self._fit_camera()
+
+    def _support_list(self, ref: int) -> list[int]:
+        m = self.app.model(self.settings.preset)
+        return list(m.supports[ref]) if m.supports is not None else []
 
     def _on_support(self, j: int, box) -> None:
         off = self.unticked.setdefault(self.settings.ref, set())
         state, _ = self.app.model(self.settings.preset).pair_state(self.settings.ref, j)
-        if state == "rejected":
+        if state in ("rejected", "unused"):
             return
         if box.value:
             off.discard(j)
         else:
             off.add(j)
-        self._record(f"support {self.app.stems[j]}", bool(box.value))
+        self.fast.request("status")
         self._on_control()
+        self._record(f"support {self.app.stems[j]}", bool(box.value))
+
+    def _on_large(self, _ev=None) -> None:
+        value = self.dd_large.value
+        large = None if value == MAP_OPTION else self.app.stems.index(value.split(" ")[0])
+        if large == self.large:
+            return
+        self.large = large
+        self.fast.request("main")
+        self._record("large", None if large is None else self.app.stems[large])
+
+    def _use_best(self, which: str) -> None:
+        """One click: the threshold that the Evaluation folder reports as best (this photo, or the
+        whole set), set through the slider so that every view follows."""
+        if which == "photo":
+            t = self.score.best_threshold if self.score is not None else None
+        else:
+            t = self.set_best.threshold if self.set_best is not None else None
+        if t is None:
+            return
+        self._record("best threshold", (which, t))
+        self.sl_thr.value = float(t)               # fires _on_control
 
     def _on_click(self, ev) -> None:
+        if self.large is not None:                  # a support is shown: its pixels are not the reference's
+            return
         o, d = np.asarray(ev.ray_origin, np.float64), np.asarray(ev.ray_direction, np.float64)
         if abs(d[2]) < 1e-12:
             return
@@ -412,21 +594,58 @@ class Session:
         if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
             return
         self.pixel = np.array([np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)])
-        self._record("pixel", (round(float(self.pixel[0]), 1), round(float(self.pixel[1]), 1)))
+        with self._pub:
+            self._version += 1
+            self.md_pixel.content = f"**Pixel ({self.pixel[0]:.0f}, {self.pixel[1]:.0f})**: {COMPUTING}"
         self.fast.request("main")
         self.slow.request("pixel")
+        self._record("pixel", (round(float(self.pixel[0]), 1), round(float(self.pixel[1]), 1)))
 
+    def pixel_to_canvas(self, u: float, v: float) -> tuple[float, float]:
+        """Where working pixel (u, v) of the reference appears in the canvas (CSS px), from the
+        camera the browser last reported (for tests and screenshots)."""
+        cam = self.client.camera
+        h, w = self.app.photo_set.photos[self.settings.ref].size
+        rw = float(self.scene_img.render_width)
+        X = np.array([((u + 0.5) / w - 0.5) * rw, (v + 0.5) / h - 0.5, 0.0])
+        R = _quat_to_matrix(np.asarray(cam.wxyz, np.float64))           # camera -> world, OpenCV axes
+        x = R.T @ (X - np.asarray(cam.position, np.float64))
+        f = 0.5 * cam.image_height / np.tan(cam.fov / 2)
+        return cam.image_width / 2 + f * x[0] / x[2], cam.image_height / 2 + f * x[1] / x[2]
+
+    # ------------------------------------------------------------------ the camera
     def _on_camera(self, cam) -> None:
-        """Refit when the viewport's shape changes (first report, window resize)."""
+        """The photo stays put: whatever turned the camera (a drag on empty space, arrow keys on
+        the canvas), it is put back to look straight at the photo, keeping pan and zoom. Also
+        refits when the viewport's shape changes (first report, window resize)."""
         try:
             aspect = float(cam.aspect)
+            self.canvas_width = int(cam.image_width)
         except Exception:
             return
-        if abs(aspect - self._fit_aspect) > 0.01 * self._fit_aspect:
+        if not self._straighten(cam) and abs(aspect - self._fit_aspect) > 0.01 * self._fit_aspect:
             self._fit_camera()
+        self.camera_reports += 1
+
+    def _straighten(self, cam) -> bool:
+        pos, look = np.asarray(cam.position, np.float64), np.asarray(cam.look_at, np.float64)
+        up = np.asarray(cam.up_direction, np.float64)
+        f = look - pos
+        dist = float(np.linalg.norm(f))
+        if dist < 1e-9 or np.linalg.norm(up) < 1e-9:
+            return False
+        straight = f[2] / dist > STRAIGHT_COS and float(up @ (0.0, -1.0, 0.0)) / np.linalg.norm(up) > STRAIGHT_COS
+        if straight:
+            return False
+        with self.client.atomic():          # position first: it drags look_at along
+            cam.position = (look[0], look[1], look[2] - dist)
+            cam.look_at = (look[0], look[1], look[2])
+            cam.up_direction = (0.0, -1.0, 0.0)
+        self._record("camera straightened", (round(float(np.degrees(np.arccos(np.clip(f[2] / dist, -1, 1)))), 1)))
+        return True
 
     def _fit_camera(self) -> None:
-        """Look straight at the photo, filling the viewport."""
+        """Look straight at the picture in the main view, filling the viewport."""
         cam = self.client.camera
         try:
             fov, aspect = float(cam.fov), float(cam.aspect)
@@ -435,11 +654,21 @@ class Session:
         self._fit_aspect = aspect
         t = np.tan(fov / 2)
         img_aspect = float(self.scene_img.render_width)
-        dist = 1.06 * max(0.5 / t, 0.5 * img_aspect / (t * max(aspect, 1e-3)))
+        dist = 1.04 * max(0.5 / t, 0.5 * img_aspect / (t * max(aspect, 1e-3)))
         with self.client.atomic():          # position first: it drags look_at along
             cam.position = (0.0, 0.0, -dist)
             cam.look_at = (0.0, 0.0, 0.0)
             cam.up_direction = (0.0, -1.0, 0.0)
+
+    def _show_scene(self, img: np.ndarray) -> bool:
+        """Put a picture in the main view; True when its shape changed (the camera is refitted)."""
+        aspect = img.shape[1] / img.shape[0]
+        changed = abs(aspect - self._img_aspect) > 1e-6
+        if changed:
+            self._img_aspect = aspect
+            self.scene_img.render_width = aspect
+        self.scene_img.image = img
+        return changed
 
     def model_changed(self, model: SetModel) -> None:
         """Something new is known (progress, geometry, a pair): redraw what depends on it."""
@@ -449,57 +678,94 @@ class Session:
             first = model.first_ref
             self.ref_chosen = True
             if first != self.settings.ref:
-                self.ref_chosen = True
                 self.dd_ref.value = self.app.stems[first]      # fires _on_ref
         ready = sum(1 for (i, _j) in list(model.results) if i == self.settings.ref)
         self.fast.request("status")
         if ready != self.ready_count or model.status in ("done", "failed"):
             self.ready_count = ready
             self.fast.request("main", "supports")
-            self.slow.request("sweep", "pixel")
+            self.slow.request("sweep", "pixel", "setbest")
 
     # ------------------------------------------------------------------ drawing
+    def _large_width(self) -> int:
+        return int(np.clip(self.canvas_width or 900, 480, 1600))
+
     def _draw_fast(self, what: set[str]) -> None:
+        epoch = self._epoch
         model = self.app.model(self.settings.preset)
         snap = model.snapshot()
         if "status" in what:
-            self._draw_status(model)
+            self._draw_status(model, epoch)
         if "main" in what:
             t0 = time.perf_counter()
-            s, layers, pixel = self.settings, self.layers, self.pixel
+            s, layers, pixel, large, report = self.settings, self.layers, self.pixel, self.large, self.report
             ref = s.ref
             stem = self.app.stems[ref]
+            gt = self.app.gts.get(stem)
             img, dyn = compose.main_view(snap, self.app.photo_set.photos[ref].rgb, s, layers, self.app.terms,
                                          self.app.gts_working.get(stem), pixel)
-            self.scene_img.image = img
-            self.main_ms = (self.main_ms + [1000 * (time.perf_counter() - t0)])[-50:]
-            self.dyn = dyn
-            self._draw_eval(ref, dyn, s.threshold)
+            if large is not None and report is not None and report.ref == ref and \
+                    large in [e.sup for e in report.evidence]:
+                img = compose.large_view(snap, report, large, self.app.stems, self._large_width())
+            n_sup = len(usable_supports(snap, s)) if snap is not None else 0
+            notice = compose.map_notice(stem, dyn, s.threshold, n_sup)
+            sc = score(self.app.photo_set, ref, dyn, gt, s.threshold) if gt is not None and dyn is not None else None
+            key = render.colour_key(KEY_WIDTH, "dynamic", None if dyn is None else (float(dyn.min()), float(dyn.max())),
+                                    s.threshold, outlines=(layers.mask, bool(self.app.gts) and layers.gt))
+            with self._pub:
+                if epoch != self._epoch:
+                    return
+                if self._show_scene(img):
+                    self._fit_camera()
+                self.main_ms = (self.main_ms + [1000 * (time.perf_counter() - t0)])[-50:]
+                self.dyn, self.score, self.notice = dyn, sc, notice
+                self.img_key.image = key
+                self._draw_notice(notice, sc)
+                self._draw_eval(ref, dyn, s.threshold, sc)
         if "supports" in what and snap is not None:
-            self.img_sup.image = compose.support_mosaic(snap, self.settings, self.app.terms, self.app.stems)
+            img = compose.support_mosaic(snap, self.settings, self.app.terms, self.app.stems)
+            with self._pub:
+                if epoch == self._epoch:
+                    self.img_sup.image = img
 
-    def _draw_status(self, model: SetModel) -> None:
+    def _draw_notice(self, notice: compose.Notice, sc: Score | None) -> None:
+        text = notice.text
+        if self.large is not None:
+            text = (f"Showing the support **{self.app.stems[self.large]}** large (Pixel tab, *Show large*: "
+                    "choose *the map* to go back).") + ("\n\n" + text if text else "")
+        self.md_notice.content = text
+        self.md_notice.visible = bool(text)
+        offer = (notice.empty or notice.doubtful) and self.app.gts.get(self.app.stems[self.settings.ref]) is not None
+        self.btn_best_img_top.visible = offer and sc is not None
+        self.btn_best_set_top.visible = offer and self.set_best is not None
+        if sc is not None:
+            self.btn_best_img_top.label = f"Use this photo's best threshold ({sc.best_threshold:.3f})"
+
+    def _draw_status(self, model: SetModel, epoch: int) -> None:
         stage, done, total = model.progress
         if model.status == "failed":
-            self.progress.visible = False
             text = f"**Cannot compute the {model.preset} preset:** {model.error}"
         elif model.status == "done":
-            self.progress.visible = False
             text = f"Ready: {len(model.results)} pairs ({model.preset} preset) in {model.seconds:.1f} s."
         else:
-            self.progress.visible = True
-            self.progress.value = 100.0 * done / total if total else 0.0
             what = {"pairs": "Matching pairs", "geometry": "Estimating geometry",
                     "features": "Finding features"}.get(stage, "Starting")
             text = f"{what}: {done} / {total} ({model.preset} preset). Maps fill in as pairs finish."
         if model.warnings:
             text += "\n\n" + "\n".join(f"- {w}" for w in model.warnings[-3:])
-        self.md_status.content = text
-        self._draw_support_boxes(model)
+        with self._pub:
+            if epoch != self._epoch:
+                return
+            self.progress.visible = model.status not in ("done", "failed")
+            if self.progress.visible:
+                self.progress.value = 100.0 * done / total if total else 0.0
+            self.md_status.content = text
+            self._draw_support_boxes(model)
 
     def _draw_support_boxes(self, model: SetModel) -> None:
         """One checkbox per other photo: ready pairs can be toggled; rejected ones are disabled
-        with the reason; pairs still computing are disabled until they finish."""
+        with the reason; pairs still computing are disabled until they finish. The head counts
+        what is on: "6 of 9 supports on"."""
         ref = self.settings.ref
         if self._box_ref != ref:
             for b in self._boxes.values():
@@ -507,7 +773,7 @@ class Session:
             self._boxes = {}
             self._box_ref = ref
         off = self.unticked.get(ref, set())
-        reasons = []
+        reasons, unused = [], []
         for j in range(self.n):
             if j == ref:
                 continue
@@ -515,10 +781,12 @@ class Session:
             stem = self.app.stems[j]
             text = {"ready": stem + (" · homography" if why == "homography" else ""),
                     "computing": f"{stem} · computing…", "rejected": f"{stem} · rejected",
-                    "unknown": f"{stem} · waiting"}[state]
-            value = state != "rejected" and j not in off
+                    "unused": f"{stem} · not used", "unknown": f"{stem} · waiting"}[state]
+            value = state not in ("rejected", "unused") and j not in off
             if state == "rejected":
                 reasons.append(f"- **{stem}**: {why}")
+            if state == "unused":
+                unused.append(stem)
             box = self._boxes.get(j)
             if box is None:
                 with self.f_sup:
@@ -531,72 +799,192 @@ class Session:
                     box.label = text
                 if box.disabled != (state != "ready"):
                     box.disabled = state != "ready"
-                if state == "rejected" and box.value:
+                if state in ("rejected", "unused") and box.value:
                     box.value = False
-        head = f"{len(model.supports[ref]) if model.supports else '?'} supports for {self.app.stems[ref]}."
-        if model.supports is not None and not model.supports[ref]:
-            head = f"**{self.app.stems[ref]} has no usable pair**: no other photo has trustworthy geometry with it."
+        stem = self.app.stems[ref]
+        if model.supports is None:
+            head = f"Supports for {stem}: {COMPUTING}"
+        elif not model.supports[ref]:
+            head = f"**{stem} has no usable pair**: no other photo has trustworthy geometry with it."
+        else:
+            sups = model.supports[ref]
+            on = [j for j in sups if j not in off]
+            ready = [j for j in on if (ref, j) in model.results]
+            head = f"**{len(on)} of {len(sups)} supports on** for {stem}"
+            if len(ready) < len(on):
+                head += f" ({len(on) - len(ready)} still computing)"
+            head += "."
+        if unused:
+            head += f"\n\nNot used (only the best {len(model.supports[ref])} are kept): {', '.join(unused)}."
         self.md_sup.content = head + ("\n\nRejected by the geometry test:\n" + "\n".join(reasons) if reasons else "")
 
-    def _draw_eval(self, ref: int, dyn: np.ndarray | None, threshold: float) -> None:
+    def _draw_eval(self, ref: int, dyn: np.ndarray | None, threshold: float, sc: Score | None) -> None:
         stem = self.app.stems[ref]
-        gt = self.app.gts.get(stem)
-        if gt is None:
-            self.score = None
+        nan = np.full_like(THRESHOLDS, np.nan)
+        if stem not in self.app.gts:
             if self.app.gts:
                 self.md_eval.content = f"No ground truth for {stem}."
+                self.plot_eval.data = (THRESHOLDS, nan, nan)
+            self.btn_best_img.label, self.btn_best_img.disabled = "Use this photo's best threshold", True
             return
-        if dyn is None:
-            self.score = None
-            self.md_eval.content = "No map yet."
+        if dyn is None or sc is None:
+            self.md_eval.content = f"No map yet for {stem}."
+            self.plot_eval.data = (THRESHOLDS, nan, nan)
+            self.btn_best_img.label, self.btn_best_img.disabled = "Use this photo's best threshold", True
             return
-        sc = score(self.app.photo_set, ref, dyn, gt, threshold)
-        self.score = sc
-        self.md_eval.content = (f"Jaccard at {threshold:.2f}: **{sc.at_threshold:.3f}**  \n"
-                                f"Best for this image: **{sc.best:.3f}** at threshold {sc.best_threshold:.3f}")
-        marker = np.full_like(THRESHOLDS, np.nan)       # one point: the current threshold
+        text = (f"{stem}: Jaccard at {threshold:.3f}: **{sc.at_threshold:.3f}**  \n"
+                f"Best for this photo: **{sc.best:.3f}** at threshold **{sc.best_threshold:.3f}**")
+        if self.set_best is not None:
+            text += (f"  \nBest for the whole set ({self.set_best.n_photos} photos, mean Jaccard "
+                     f"{self.set_best.jaccard:.3f}): threshold **{self.set_best.threshold:.3f}**")
+        self.md_eval.content = text
+        self.btn_best_img.label = f"Use this photo's best threshold ({sc.best_threshold:.3f})"
+        self.btn_best_img.disabled = False
+        marker = nan.copy()                         # one point: the current threshold
         marker[int(np.argmin(np.abs(THRESHOLDS - threshold)))] = sc.at_threshold
         self.plot_eval.data = (THRESHOLDS, sc.curve, marker)
 
+    def _publishable(self, epoch: int, version: int) -> bool:
+        return epoch == self._epoch and version == self._version and not self._closed
+
     def _draw_slow(self, what: set[str]) -> None:
+        epoch, version = self._epoch, self._version
         model = self.app.model(self.settings.preset)
         snap = model.snapshot()
         if snap is None:
             return
         s = self.settings
         if "sweep" in what:
-            self._draw_sweep(snap, s)
+            self._draw_sweep(snap, s, epoch, version)
+        if "setbest" in what:
+            self._draw_set_best(snap, s, epoch)
         if "pixel" in what and self.pixel is not None:
+            pixel = self.pixel
             dyn = compose.dynamic_prob(snap, s, self.app.terms)
             if dyn is None:
-                self.md_pixel.content = "No support is ready for this reference yet."
+                with self._pub:
+                    if self._publishable(epoch, version):
+                        self.md_pixel.content = "No support is ready for this reference yet."
                 return
-            self.report = compose.explain(snap, s, self.app.terms, dyn, self.pixel)
-            self._record("explained", len(self.report.evidence))
-            self.img_bars.image = render.bar_chart([self.app.stems[e.sup] for e in self.report.evidence],
-                                                   list(self.report.values), self.report.dynamic, s.threshold)
-            self.img_evidence.image = compose.evidence_tiles(snap, self.report, self.app.stems)
-            self.img_bars.visible = self.img_evidence.visible = True
-            what = what | {"pixel_text"}
-        if "pixel_text" in what and self.report is not None:
-            self.md_pixel.content = compose.report_markdown(self.report, self.app.stems, self.app.stems[s.ref],
-                                                            s.threshold)
+            report = compose.explain(snap, s, self.app.terms, dyn, pixel, self.app.stems)
+            parts = self._pixel_parts(snap, report, s)
+            if self.hold_slow is not None:          # tests: a draw held here while the tab changes
+                self.slow_waiting.set()
+                self.hold_slow.wait(60)
+            with self._pub:
+                if not self._publishable(epoch, version):
+                    return
+                self.report = report
+                self._publish_pixel(report, parts)
+            self._record("explained", len(report.evidence))
+            if self.large is not None:
+                self.fast.request("main")
+            what = what - {"pixel_text"}
+        if "pixel_text" in what and self.report is not None and self.report.ref == s.ref:
+            report = dataclasses.replace(self.report, fusion=dataclasses.replace(
+                self.report.fusion, threshold_at=compose.threshold_at(self.report.fusion, s.threshold)))
+            chart = self._fusion_chart(report)
+            with self._pub:
+                if self._publishable(epoch, version):
+                    self.md_pixel.content = compose.verdict_markdown(report, self.app.stems[s.ref], s.threshold)
+                    self.img_fusion.image = chart
 
-    def _draw_sweep(self, snap, s: Settings) -> None:
+    def _fusion_chart(self, report: compose.PixelReport) -> np.ndarray:
+        f = report.fusion
+        if f.method == "votes":
+            rows = [render.VoteRow(r.name, r.vote, r.total, neutral=r.kind == "mean") for r in f.rows]
+            return render.fusion_chart(rows, f.threshold_at, f.p_map, CHART_WIDTH)
+        return render.value_bars([r.name for r in f.rows], [r.p for r in f.rows], f.p_map, self.settings.threshold,
+                                 CHART_WIDTH)
+
+    def _pixel_parts(self, snap, report: compose.PixelReport, s: Settings) -> dict:
+        kinds = {e.kind for e in report.evidence}
+        swept = any(e.strip is not None for e in report.evidence)
+        return {"chart": self._fusion_chart(report),
+                "tiles": compose.evidence_tiles(snap, report, self.app.stems),
+                "legend": compose.lines_legend(2 * compose.EVIDENCE_TILE + 4, kinds, swept, 12),
+                "verdict": compose.verdict_markdown(report, self.app.stems[s.ref], s.threshold),
+                "fusion": compose.fusion_markdown(report),
+                "evidence": compose.evidence_markdown(report, self.app.stems)}
+
+    def _publish_pixel(self, report: compose.PixelReport, parts: dict) -> None:
+        self.md_pixel.content = parts["verdict"]
+        options = [MAP_OPTION] + [f"{self.app.stems[e.sup]} · P {v:.2f}" for e, v in zip(report.evidence,
+                                                                                           report.values)]
+        current = self.dd_large.value
+        self.dd_large.options = options
+        if self.large is not None and self.large not in [e.sup for e in report.evidence]:
+            self.large = None
+        if self.large is None:
+            self.dd_large.value = MAP_OPTION
+        else:
+            self.dd_large.value = next(o for o in options if o.split(" ")[0] == self.app.stems[self.large])
+        del current
+        self.dd_large.disabled = False
+        self.img_fusion.image = parts["chart"]
+        self.md_fusion.content = parts["fusion"]
+        self.md_evidence.content = parts["evidence"]
+        self.img_evidence.image = parts["tiles"]
+        self.img_lines.image = parts["legend"]
+        self.img_fusion.visible = self.img_evidence.visible = self.img_lines.visible = True
+
+    def _draw_sweep(self, snap, s: Settings, epoch: int, version: int) -> None:
         view = compose.sweep(snap, s, self.app.terms)
-        if not view.maps:
-            self.md_sweep.content = "No support is ready for this reference yet."
-            self.img_sweep.image = BLANK
-            return
+        k = len(view.maps)
         gt = self.app.gts.get(self.app.stems[s.ref])
         scores = [score(self.app.photo_set, s.ref, m, gt, s.threshold) for m in view.maps] if gt is not None else None
-        self.img_sweep.image = compose.sweep_mosaic(view, self.app.stems, s.threshold,
-                                                    [x.at_threshold for x in scores] if scores else None)
-        self.md_sweep.content = (f"P_dynamic after the first k of {len(view.maps)} supports, in support-set order "
-                                 f"(the paper's Fig. 5); the last one is the main view.")
-        if scores:
-            k = np.arange(1, len(scores) + 1, dtype=np.float64)
-            self.plot_sweep.data = (k, np.array([x.at_threshold for x in scores]), np.array([x.best for x in scores]))
+        img = compose.sweep_mosaic(view, self.app.stems, s.threshold,
+                                   [x.at_threshold for x in scores] if scores else None)
+        with self._pub:
+            if not self._publishable(epoch, version):
+                return
+            self.img_sweep.image = img
+            if not view.maps:
+                self.md_sweep.content = "No support is ready for this reference yet."
+            else:
+                self.md_sweep.content = (f"P_dynamic of {self.app.stems[s.ref]} after the first 1, 2, … {k} of its "
+                                         f"{k} supports, in support-set order (the paper's Fig. 5); the last one "
+                                         "is the main view.")
+            n = max(k, 2)
+            x = np.arange(1.0, n + 1)
+            if scores:
+                y1 = np.array([x_.at_threshold for x_ in scores] + [np.nan] * (n - k))
+                y2 = np.array([x_.best for x_ in scores] + [np.nan] * (n - k))
+            else:
+                y1 = y2 = np.full(n, np.nan)
+            self.plot_sweep.data = (x, y1, y2)
+            self.plot_sweep.scales = {"x": vu.Scale(time=False, range=(1.0, float(n))),
+                                      "y": vu.Scale(range=(0.0, 1.0))}
+        self._record("sweep", (self.app.stems[s.ref], k))
+
+    def _set_best_key(self, snap, s: Settings) -> tuple:
+        """What the set-wide best threshold depends on: the preset's pairs so far, the
+        aggregation settings (not the reference or threshold) and the supports switched off."""
+        off = tuple(sorted((i, frozenset(v)) for i, v in self.unticked.items() if v))
+        return (s.preset, snap.normaliser, len(snap.pair_results),
+                dataclasses.replace(s, ref=0, supports=(), threshold=0.0), off)
+
+    def _draw_set_best(self, snap, s: Settings, epoch: int) -> None:
+        if not self.app.gts:
+            return
+        key = self._set_best_key(snap, s)
+        if key == self._set_best_key_done:
+            best = self.set_best
+        else:
+            off = {i: set(v) for i, v in key[-1]}
+            best = set_best_threshold(snap, s, self.app.gts, off)
+        with self._pub:
+            now = self.app.model(self.settings.preset).snapshot()
+            if self._closed or now is None or key != self._set_best_key(now, self.settings):
+                return                          # the settings moved on: a newer request is queued
+            self._set_best_key_done, self.set_best = key, best
+            for b in (self.btn_best_set, self.btn_best_set_top):
+                b.label = "Use the set's best threshold" + (f" ({best.threshold:.3f})" if best else " (no map yet)")
+                b.disabled = best is None
+            if epoch == self._epoch:
+                self._draw_notice(self.notice, self.score)
+                self._draw_eval(self.settings.ref, self.dyn, self.settings.threshold, self.score)
+        self._record("set best", None if best is None else best.threshold)
 
     # ------------------------------------------------------------------ export and Rerun
     def _current_map(self) -> tuple[int, np.ndarray | None]:
@@ -650,31 +1038,46 @@ class Session:
         self._record("saved", [str(p) for p in paths])
         return paths
 
-    def _open_rerun_safely(self) -> None:
-        try:
-            self._open_rerun()
-        except Exception as e:          # shown in the tab: the viewer failed to start, a full disk, ...
-            self.md_export.content = f"Could not record to Rerun: {type(e).__name__}: {e}"
+    def _ask_rerun(self) -> None:
+        """Say at once that recording has started (it runs on the Rerun thread)."""
+        stem = self.app.stems[self.settings.ref]
+        with self._pub:
+            self.md_export.content = f"Recording {stem} to Rerun… (the viewer starts on first use)"
+        self.app.rerun_worker.submit(self._open_rerun_safely, self._epoch)
 
-    def _open_rerun(self) -> None:
+    def _open_rerun_safely(self, epoch: int) -> None:
+        try:
+            self._open_rerun(epoch)
+        except Exception as e:          # shown in the tab: the viewer failed to start, a full disk, ...
+            with self._pub:
+                if epoch == self._epoch:
+                    self.md_export.content = f"Could not record to Rerun: {type(e).__name__}: {e}"
+
+    def _open_rerun(self, epoch: int) -> None:
         """Record the current reference (with the explained pixel, if any) into the loopback Rerun
-        viewer and link to it."""
+        viewer and link to it. Only this reference's pairs are recorded (the whole set would take
+        minutes on a large set while a preset is being computed)."""
         import rerun as rr
 
         from pipeline.rerun_log import log_run, make_blueprint
-        self.md_export.content = "Recording to Rerun… (the viewer starts on first use)"
+        if epoch != self._epoch:            # the reference or preset changed before this started
+            return
         s = self.settings
+        stem = self.app.stems[s.ref]
         snap = self.app.model(s.preset).snapshot()
         if snap is None or compose.dynamic_prob(snap, s, self.app.terms) is None:
-            self.md_export.content = "No map yet for this reference."
+            with self._pub:
+                if epoch == self._epoch:
+                    self.md_export.content = f"No map yet for {stem}: nothing to record."
             return
         p = s.params()
-        supports = [[j for j in sup if (i, j) in snap.pair_results] for i, sup in enumerate(snap.supports)]
-        supports[s.ref] = usable_supports(snap, s)
-        res = dataclasses.replace(snap, params=p, supports=supports, dynamic=[None] * self.n)
-        res.dynamic = [res.dynamic_prob(i, sup) if sup else None for i, sup in enumerate(supports)]
+        sups = usable_supports(snap, s)
+        supports = [[] for _ in range(self.n)]
+        supports[s.ref] = sups
+        results = {(s.ref, j): snap.pair_results[(s.ref, j)] for j in sups}
+        res = dataclasses.replace(snap, params=p, supports=supports, pair_results=results, dynamic=[None] * self.n)
+        res.dynamic[s.ref] = res.dynamic_prob(s.ref, sups)
         web = self.app.rerun_viewer()
-        stem = self.app.stems[s.ref]
         rec = rr.RecordingStream("crowdcam", recording_id=f"{self.app.photo_set.name}-{stem}-{int(time.time())}")
         rec.connect_grpc(web.grpc_uri)
         desc = log_run(res, rec, focus=s.ref, pixels=None if self.pixel is None else self.pixel[None], gts=self.app.gts,
@@ -682,10 +1085,29 @@ class Session:
         rec.send_blueprint(make_blueprint(desc))
         rec.flush()
         self.app.keep_recording(rec)
+        with self._pub:
+            if epoch != self._epoch:
+                return
+            self.md_export.content = (f"Recorded {stem}: [open the Rerun viewer]({web.url}) (served on this "
+                                      "machine's loopback only; the viewer takes a few seconds to load).")
         self._record("rerun", web.url)
-        self.md_export.content = (f"Recorded {stem}: [open the Rerun viewer]({web.url}) (served on this "
-                                  "machine's loopback only; the viewer takes a few seconds to load).")
 
 
 def _noev_label(mode: str) -> str:
     return next(k for k, v in NO_EVIDENCE.items() if v == mode)
+
+
+def _remap_range(value) -> tuple[float, float]:
+    """The two number boxes of the remap range as a valid (lo, hi): ordered, in [0, 1], at least
+    0.02 apart."""
+    lo, hi = sorted(float(np.clip(v, 0.0, 1.0)) for v in value)
+    if hi - lo < 0.02:
+        lo, hi = (lo, lo + 0.02) if lo <= 0.98 else (0.98, 1.0)
+    return (lo, hi)
+
+
+def _quat_to_matrix(wxyz: np.ndarray) -> np.ndarray:
+    w, x, y, z = wxyz / np.linalg.norm(wxyz)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])

@@ -3,7 +3,13 @@
 The inspector runs in this process (so the test can read what the server computed); the browser
 opens the page while pairs are still being computed, changes the reference, unticks a support,
 moves the threshold, clicks a pixel, downloads the map, and a second tab keeps its own state.
+Further tests, each in a tab of its own on the same computed set: keys on a focused control
+leave the photo straight, a change of reference leaves nothing of the old one on the page, and
+"use the best threshold" sets what the Evaluation folder reports.
 Screenshots are kept under the pytest temp dir (printed at the end).
+
+No test sleeps to wait for a state: they wait for the session's recorded events, the redrawers'
+idle events and Playwright's own auto-waiting locators, and hold a draw with an explicit gate.
 """
 
 import re
@@ -24,19 +30,31 @@ ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-f
 
 
 def wait_for(pred, timeout=60.0, what="condition"):
+    """Poll a condition the server sets (an explicit state, not a delay)."""
     t0 = time.time()
     while time.time() - t0 < timeout:
         if pred():
             return
-        time.sleep(0.05)
+        time.sleep(0.02)
     raise AssertionError(f"timed out waiting for {what}")
 
 
 def settled(session):
-    """Both redrawers idle (twice, so a draw that queued another one has finished too)."""
-    for _ in range(2):
-        assert session.fast.wait_idle(60) and session.slow.wait_idle(120)
-        time.sleep(0.2)
+    """Both redrawers idle at once. A slow draw may ask the fast one to draw (never the other
+    way), so: slow idle, then fast idle, then slow still idle."""
+    for _ in range(1000):
+        assert session.slow.wait_idle(120) and session.fast.wait_idle(60)
+        if session.slow.idle() and session.fast.idle():
+            return
+    raise AssertionError("the tab never settled")
+
+
+def wait_event(session, name, pred=lambda v: True, after=0, timeout=60.0):
+    """Wait until the session records event `name` (with a value satisfying pred) at index >= after;
+    callbacks record their event after asking for their redraws."""
+    def found():
+        return any(e[0] == name and pred(e[1]) for e in session.events[after:])
+    wait_for(found, timeout, f"event {name!r}")
 
 
 @pytest.fixture(scope="module")
@@ -73,26 +91,50 @@ def browser():
         b.close()
 
 
-def open_tab(browser, app, hosts):
-    ctx = browser.new_context(viewport={"width": 1500, "height": 950}, accept_downloads=True)
+def open_tab(browser, app, hosts, viewport=(1500, 950)):
+    ctx = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}, accept_downloads=True)
     page = ctx.new_page()
     page.on("request", lambda r: hosts.add(urlparse(r.url).hostname) if r.url.startswith(("http", "ws")) else None)
     before = set(app.sessions)
     page.goto(app.url)
-    page.wait_for_selector("text=Threshold", timeout=60_000)
+    page.get_by_text("Threshold", exact=True).first.wait_for(timeout=60_000)
     wait_for(lambda: set(app.sessions) - before, what="the tab's session")
     return page, app.sessions[(set(app.sessions) - before).pop()]
 
 
+def ready_tab(browser, app, viewport=(1280, 720)):
+    """A tab on the finished run, settled."""
+    app.release()                          # (the first test holds the run to see it in progress)
+    page, tab = open_tab(browser, app, set(), viewport)
+    page.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=120_000)
+    wait_event(tab, "set best")
+    settled(tab)
+    return page, tab
+
+
+def number_box(page, handle):
+    return page.locator(f'[id="{handle._impl.uuid}"]').locator("xpath=../..").locator("input.mantine-NumberInput-input")
+
+
 def set_number(page, slider, value: str) -> None:
-    """Type into a slider's number box (arrow keys on the thumb would also orbit the 3-D view)."""
-    box = page.locator(f'[id="{slider._impl.uuid}"]').locator("xpath=../..").locator("input.mantine-NumberInput-input")
+    """Type into a slider's number box."""
+    box = number_box(page, slider)
     box.fill(value)
     box.press("Enter")
 
 
 def canvas_shot(page, path):
     return page.locator("canvas").first.screenshot(path=str(path))
+
+
+def click_pixel(page, tab, u, v):
+    """Click working pixel (u, v) of the reference where the browser's camera shows it."""
+    box = page.locator("canvas").first.bounding_box()
+    x, y = tab.pixel_to_canvas(u, v)
+    n = len(tab.events)
+    page.mouse.click(box["x"] + x, box["y"] + y)
+    wait_event(tab, "explained", after=n)
+    settled(tab)
 
 
 def test_inspector_in_a_browser(app, browser, shots, tmp_path):
@@ -107,45 +149,66 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page.screenshot(path=str(shots / "0_progress.png"))
     app.release()
     page.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=300_000)
+    wait_event(tab, "set best")
     settled(tab)
     snap = model.snapshot()
     assert tab.settings.ref == model.first_ref                 # the photo with most supports first
     a = canvas_shot(page, shots / "1_ready.png")
 
+    # the first screen says how to read it: a caption, and a key with this map's range
+    page.get_by_text("Click a point to see why it is marked").wait_for(timeout=10_000)
+    from inspector import render
+    from inspector.app import KEY_WIDTH
+    lo, hi = float(tab.dyn.min()), float(tab.dyn.max())
+    want = render.colour_key(KEY_WIDTH, "dynamic", (lo, hi), tab.settings.threshold, outlines=(True, True))
+    assert tab.img_key.visible and np.array_equal(tab.img_key.image, want)
+    key_box = page.locator("img[src^='blob:']").first.bounding_box()
+    assert key_box is not None and key_box["width"] > 200 and key_box["height"] > 40
+    # every preset, the 2-D baseline included
+    page.get_by_role("combobox", name="Preset").click()
+    for name in ("default", "paper", "peer-homography"):
+        page.get_by_role("option", name=name, exact=True).wait_for(timeout=10_000)
+    page.keyboard.press("Escape")
+
     # 2. another reference (one with at least two supports)
     stems = app.stems
     ref = next(i for i, s in enumerate(snap.supports) if len(s) >= 2 and i != tab.settings.ref)
+    n = len(tab.events)
     page.get_by_role("combobox", name="Reference").click()
     page.get_by_role("option", name=stems[ref], exact=True).click()
-    wait_for(lambda: tab.settings.ref == ref, what="the reference change")
+    wait_event(tab, "ref", lambda v: v == stems[ref], after=n)
     settled(tab)
     b = canvas_shot(page, shots / "2_reference.png")
     assert a != b
 
-    # 3. untick a support: the map is Eq. 3 over the others
+    # 3. untick a support: the map is Eq. 3 over the others, and the count says so
     sups = snap.supports[ref]
     off = sups[0]
+    n = len(tab.events)
     page.get_by_label(re.compile(rf"^{stems[off]}")).uncheck()
-    wait_for(lambda: off not in tab.settings.supports, what="the support toggle")
+    wait_event(tab, f"support {stems[off]}", lambda v: v is False, after=n)
     settled(tab)
     want = snap.dynamic_prob(ref, [j for j in sups if j != off], tab.settings.params())
     np.testing.assert_allclose(tab.dyn, want, atol=1e-5)
+    assert f"{len(sups) - 1} of {len(sups)} supports on" in tab.md_sup.content
     c = canvas_shot(page, shots / "3_support_off.png")
     assert c != b
 
     # 4. the threshold, through its number box
+    n = len(tab.events)
     set_number(page, tab.sl_thr, "0.3")
-    wait_for(lambda: abs(tab.settings.threshold - 0.3) < 1e-9, what="the threshold")
+    wait_event(tab, "settings", lambda s: abs(s.threshold - 0.3) < 1e-9, after=n)
     settled(tab)
     d = canvas_shot(page, shots / "4_threshold.png")
     assert d != c
-    assert "Jaccard at 0.30" in tab.md_eval.content
+    assert "Jaccard at 0.300" in tab.md_eval.content
     assert tab.score is not None and 0.0 <= tab.score.at_threshold <= tab.score.best <= 1.0
 
     # 5. click the middle of the photo: the evidence behind that pixel
     box = page.locator("canvas").first.bounding_box()
+    n = len(tab.events)
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-    wait_for(lambda: any(e[0] == "explained" for e in tab.events), what="the pixel explanation")
+    wait_event(tab, "explained", after=n)
     settled(tab)
     u, v = tab.pixel
     h, w = app.photo_set.photos[ref].size
@@ -156,6 +219,19 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page.get_by_text(re.compile(r"Pixel \(\d+, \d+\)")).wait_for(timeout=10_000)
     page.get_by_text(f"{rep.dynamic:.2f}", exact=True).first.wait_for(timeout=10_000)
     page.screenshot(path=str(shots / "5_pixel.png"))
+    # a support's evidence, large in the main view
+    n = len(tab.events)
+    page.get_by_role("combobox", name="Show large").click()
+    page.get_by_role("option", name=re.compile("^" + stems[rep.evidence[0].sup])).click()
+    wait_event(tab, "large", lambda s: s == stems[rep.evidence[0].sup], after=n)
+    settled(tab)
+    assert abs(tab.scene_img.render_width - tab.scene_img.image.shape[1] / tab.scene_img.image.shape[0]) < 1e-6
+    page.screenshot(path=str(shots / "5b_large.png"))
+    n = len(tab.events)
+    page.get_by_role("combobox", name="Show large").click()
+    page.get_by_role("option", name="the map (reference)").click()
+    wait_event(tab, "large", lambda s: s is None, after=n)
+    settled(tab)
     page.get_by_role("tab", name="Sweep").click()
     page.screenshot(path=str(shots / "6_sweep.png"))
 
@@ -167,7 +243,7 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     from pipeline.output import to_original
     np.testing.assert_allclose(np.load(path), to_original(tab.dyn, app.photo_set.photos[ref]), atol=1e-6)
     page.get_by_role("button", name="Save to output folder").click()
-    wait_for(lambda: any(e[0] == "saved" for e in tab.events), what="the saved files")
+    wait_event(tab, "saved")
     for suffix in ("_dynamic.npy", "_mask.png", "_overlay.jpg", "_settings.json"):
         assert (app.out_dir / f"{stems[ref]}{suffix}").is_file()
 
@@ -176,8 +252,9 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page2.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=60_000)
     assert tab2.settings.ref == model.first_ref != ref
     assert tab2.settings.threshold == 0.5
+    n = len(tab2.events)
     set_number(page2, tab2.sl_thr, "0.7")
-    wait_for(lambda: abs(tab2.settings.threshold - 0.7) < 1e-9, what="the second tab's threshold")
+    wait_event(tab2, "settings", lambda s: abs(s.threshold - 0.7) < 1e-9, after=n)
     settled(tab2)
     page2.screenshot(path=str(shots / "7_second_tab.png"))
     assert tab.settings.threshold == 0.3 and tab.settings.ref == ref and off not in tab.settings.supports
@@ -189,7 +266,8 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
 
     # 8. Open in Rerun: records this reference into the loopback viewer and links to it
     page.get_by_role("button", name="Open in Rerun").click()
-    wait_for(lambda: any(e[0] == "rerun" for e in tab.events), timeout=120, what="the Rerun recording")
+    page.get_by_text(re.compile(r"^Recording ")).wait_for(timeout=10_000)        # said at once
+    wait_event(tab, "rerun", timeout=120)
     url = next(e[1] for e in tab.events if e[0] == "rerun")
     assert urlparse(url).hostname == "127.0.0.1"
     page.get_by_role("link", name="open the Rerun viewer").wait_for(timeout=10_000)
@@ -198,3 +276,165 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page.screenshot(path=str(shots / "8_rerun_link.png"))
 
     assert hosts <= {"127.0.0.1"}, hosts               # nothing outside this machine
+    page.context.close()
+
+
+def _forward(cam) -> np.ndarray:
+    f = np.asarray(cam.look_at, float) - np.asarray(cam.position, float)
+    return f / np.linalg.norm(f)
+
+
+def _camera_report(page, tab, size) -> None:
+    """Make the browser report its camera now (a viewport change does), and wait for it."""
+    n, w0 = tab.camera_reports, tab.client.camera.image_width
+    page.set_viewport_size({"width": size[0], "height": size[1]})
+    wait_for(lambda: tab.camera_reports > n and tab.client.camera.image_width != w0, what="a camera report")
+
+
+def test_keys_on_a_control_leave_the_photo_straight(app, browser, shots):
+    """An arrow key on the focused threshold slider moves the threshold, not the camera (before,
+    each press also orbited the view); on the canvas itself the camera turns and the server
+    puts it straight again, keeping the zoom."""
+    page, tab = ready_tab(browser, app)
+    cam = tab.client.camera
+    assert _forward(cam)[2] > 0.9999
+    dist = np.linalg.norm(np.asarray(cam.look_at) - np.asarray(cam.position))
+    thumb = page.get_by_role("slider").first
+    t0 = tab.settings.threshold
+    n_straight = sum(e[0] == "camera straightened" for e in tab.events)
+    n = len(tab.events)
+    thumb.focus()
+    page.keyboard.down("ArrowRight")                 # held until the server has the new value
+    wait_event(tab, "settings", lambda s: s.threshold > t0, after=n)
+    page.keyboard.up("ArrowRight")
+    assert tab.settings.threshold == pytest.approx(t0 + 0.005)
+    assert thumb.get_attribute("aria-valuenow") == f"{t0 + 0.005:g}"
+    _camera_report(page, tab, (1281, 720))
+    assert _forward(cam)[2] > 0.99999, _forward(cam)
+    assert sum(e[0] == "camera straightened" for e in tab.events) == n_straight   # it never turned
+
+    # on the canvas (nothing focused) the arrow keys orbit: the camera is put back, zoom kept
+    page.evaluate("document.activeElement && document.activeElement.blur()")
+    n = len(tab.events)
+    page.keyboard.down("ArrowLeft")
+    wait_event(tab, "camera straightened", after=n)
+    page.keyboard.up("ArrowLeft")
+    _camera_report(page, tab, (1280, 720))
+    wait_for(lambda: _forward(cam)[2] > 0.99999, what="the straight camera")
+    assert np.linalg.norm(np.asarray(cam.look_at) - np.asarray(cam.position)) == pytest.approx(dist, rel=0.05)
+    page.screenshot(path=str(shots / "9_after_keys.png"))
+    page.context.close()
+
+
+def _page_text(page) -> str:
+    return page.evaluate("document.body.innerText")
+
+
+def test_a_new_reference_leaves_nothing_of_the_old(app, browser, shots):
+    """A change of reference clears or redraws every plot, text and link at once, even while a
+    draw for the old reference is under way (held here by a gate until after the change)."""
+    from inspector import compose
+    from inspector.app import MAP_OPTION, PIXEL_HINT
+    from inspector.model import score
+    page, tab = ready_tab(browser, app)
+    model = app.models["default"]
+    snap = model.snapshot()
+    stems = app.stems
+    old = tab.settings.ref
+    h, w = app.photo_set.photos[old].size
+    click_pixel(page, tab, 0.5 * w, 0.55 * h)
+    page.get_by_role("button", name="Open in Rerun").click()
+    wait_event(tab, "rerun", timeout=120)
+    assert stems[old] in tab.md_export.content
+
+    # a draw of the old reference held before it publishes; meanwhile the reference changes
+    tab.hold_slow = threading.Event()
+    tab.slow_waiting.clear()
+    box = page.locator("canvas").first.bounding_box()
+    x, y = tab.pixel_to_canvas(0.4 * w, 0.5 * h)
+    page.mouse.click(box["x"] + x, box["y"] + y)
+    assert tab.slow_waiting.wait(60)
+    # another photo, with another number of supports where the set has one (the sweep's axis)
+    others = [i for i, s in enumerate(snap.supports) if s and i != old]
+    new = min(others, key=lambda i: (len(snap.supports[i]) == len(snap.supports[old]), i))
+    n = len(tab.events)
+    page.get_by_role("combobox", name="Reference").click()
+    page.get_by_role("option", name=stems[new], exact=True).click()
+    wait_event(tab, "ref", lambda v: v == stems[new], after=n)
+    # at once: nothing of the old reference, "computing…" where a value is not ready
+    assert tab.md_pixel.content == PIXEL_HINT and tab.report is None
+    assert tab.dd_large.options == (MAP_OPTION,) or list(tab.dd_large.options) == [MAP_OPTION]
+    assert not tab.img_fusion.visible and not tab.img_evidence.visible and tab.md_fusion.content == ""
+    assert stems[old] not in tab.md_export.content and stems[old] not in tab.md_eval.content
+    gt = app.gts[stems[new]]
+    from inspector.model import dynamic_prob
+    new_curve = score(app.photo_set, new, dynamic_prob(snap, tab.settings, app.terms), gt, tab.settings.threshold).curve
+    curve = tab.plot_eval.data[1]                     # cleared, or already the new photo's (a fast draw)
+    assert np.all(np.isnan(curve)) or np.allclose(curve, new_curve)
+    tab.hold_slow.set()                               # the old draw may finish now: it must not publish
+    wait_event(tab, "sweep", lambda v: v[0] == stems[new], after=n)
+    settled(tab)
+    tab.hold_slow = None
+
+    s = tab.settings
+    sups = snap.supports[new]
+    assert tab.report is None and tab.md_pixel.content == PIXEL_HINT
+    assert tab.md_sup.content.startswith(f"**{len(sups)} of {len(sups)} supports on** for {stems[new]}")
+    x, y1, y2 = tab.plot_sweep.data
+    assert list(x) == list(np.arange(1.0, max(len(sups), 2) + 1))            # 1 … k supports of this photo
+    assert tab.plot_sweep.scales["x"]["range"] == (1.0, float(max(len(sups), 2)))
+    assert f"of its {len(sups)} supports" in tab.md_sweep.content and stems[new] in tab.md_sweep.content
+    sc = score(app.photo_set, new, tab.dyn, gt, s.threshold)
+    np.testing.assert_allclose(tab.plot_eval.data[1], sc.curve)
+    assert tab.md_eval.content.startswith(f"{stems[new]}: Jaccard")
+    view = compose.sweep(snap, s, app.terms)
+    want = compose.sweep_mosaic(view, stems, s.threshold,
+                                [score(app.photo_set, new, m, gt, s.threshold).at_threshold for m in view.maps])
+    assert np.array_equal(tab.img_sweep.image, want)
+    assert np.array_equal(tab.img_sup.image, compose.support_mosaic(snap, s, app.terms, stems))
+    assert tab.md_export.content == ""
+    text = _page_text(page)
+    assert f"of {stems[old]}" not in text and f"Recorded {stems[old]}" not in text
+    page.screenshot(path=str(shots / "10_new_reference.png"))
+    page.context.close()
+
+
+def test_use_the_best_threshold(app, browser, shots):
+    """An empty map says so with its range; one click sets the best threshold the Evaluation
+    folder reports, for this photo or for the whole set (pipeline.evaluate over all maps)."""
+    from pipeline.evaluate import score_set
+    from pipeline.output import to_original
+    page, tab = ready_tab(browser, app)
+    n = len(tab.events)
+    set_number(page, tab.sl_thr, "0.995")
+    wait_event(tab, "settings", lambda s: abs(s.threshold - 0.995) < 1e-9, after=n)
+    settled(tab)
+    if tab.dyn.max() <= 0.995:                          # nothing marked: said in one line, with the range
+        assert tab.notice.empty and tab.md_notice.visible
+        assert f"{tab.dyn.min():.2f}–{tab.dyn.max():.2f}" in tab.md_notice.content
+        page.get_by_text(re.compile(r"^Nothing is marked in")).wait_for(timeout=10_000)
+        assert tab.btn_best_img_top.visible and tab.btn_best_set_top.visible
+    page.screenshot(path=str(shots / "11_empty.png"))
+
+    best = tab.score.best_threshold
+    assert f"at threshold **{best:.3f}**" in tab.md_eval.content
+    n = len(tab.events)
+    page.get_by_role("button", name=re.compile(r"^Use this photo's best threshold")).last.click()
+    wait_event(tab, "settings", lambda s: abs(s.threshold - best) < 1e-9, after=n)
+    settled(tab)
+    assert number_box(page, tab.sl_thr).input_value() == f"{best:g}"
+    assert tab.score.at_threshold == pytest.approx(tab.score.best)
+
+    snap = app.models["default"].snapshot()
+    p = tab.settings.params()
+    probs = {ph.stem: to_original(snap.dynamic_prob(i, snap.supports[i], p), ph)
+             for i, ph in enumerate(app.photo_set.photos) if snap.supports[i] and ph.stem in app.gts}
+    want = score_set(probs, app.gts).set_threshold
+    assert tab.set_best.threshold == pytest.approx(want)
+    assert f"threshold **{want:.3f}**" in tab.md_eval.content
+    n = len(tab.events)
+    page.get_by_role("button", name=re.compile(r"^Use the set's best threshold")).last.click()
+    wait_event(tab, "settings", lambda s: abs(s.threshold - want) < 1e-9, after=n)
+    settled(tab)
+    assert number_box(page, tab.sl_thr).input_value() == f"{want:g}"
+    page.context.close()

@@ -201,3 +201,74 @@ def test_support_tiles_draw_a_match_blue_and_no_match_red(run):
     assert min(terms.match_prob(snap, i, j, s.params()).mean() for j in snap.supports[i]) > 0.5
     tiles = compose.support_mosaic(snap, s, terms, ["x"] * len(snap.photo_set.photos)).astype(int)
     assert (tiles[..., 2] - tiles[..., 0]).mean() > 20      # blue over red
+
+
+def test_the_fusion_table_adds_up(run):
+    """For a clicked pixel, the votes' running sum ends at the total, the total is the pipeline's
+    static log-odds there (negated), the formula gives the unrefined P_dynamic, and the map shows
+    the refined one; for `default` (mean of the supports' terms, the depth cue, the calibration)
+    and for the paper's aggregation (the plain sum of Eq. 3)."""
+    from inspector import compose
+    from inspector.model import Settings, dynamic_prob
+    from pipeline.aggregate import support_log_odds
+    snap, i, terms, s = all_supports(run)
+    stems = [p.stem for p in snap.photo_set.photos]
+    paper = dataclasses.replace(Settings.for_preset("paper", i, 256), supports=s.supports)
+    h, w = snap.photo_set.photos[i].size
+    for settings in (s, paper):
+        p = settings.params()
+        sups = list(snap.supports[i])
+        dyn = dynamic_prob(snap, settings, terms)
+        raw = snap.dynamic_prob(i, sups, dataclasses.replace(settings, refine=False).params())
+        for fx, fy in ((0.5, 0.6), (0.2, 0.3), (0.8, 0.8)):
+            xy = np.array([fx * w, fy * h])
+            u, v = round(xy[0]), round(xy[1])
+            f = compose.explain(snap, settings, terms, dyn, xy, stems).fusion
+            assert f.method == "votes"
+            running = 0.0
+            for r in f.rows:
+                running += r.vote
+                assert r.total == pytest.approx(running, abs=1e-9)
+            assert f.rows[-1].total == pytest.approx(f.total)
+            if p.sweep.enabled:
+                z = float(snap.static_log_odds(i, sups, p)[v, u])
+                assert [r.kind for r in f.rows][-1] == "depth"
+            else:
+                z = float(sum(support_log_odds(snap.match_prob(i, j, p), p.aggregate)[v, u] for j in sups))
+                assert len(f.rows) == len(sups)
+            assert -f.total == pytest.approx(z, abs=1e-4)
+            assert f.p_raw == pytest.approx(float(raw[v, u]), abs=1e-4)
+            assert f.p_map == pytest.approx(float(dyn[v, u]))
+            md = compose.fusion_markdown(compose.PixelReport(xy, f.p_map, (), (), fusion=f))
+            assert f"**{f.p_raw:.2f}**" in md
+
+
+def test_peer_baseline_fusion_is_the_median():
+    from inspector import compose
+    from inspector.model import Settings, TermCache, dynamic_prob
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+    ps = load_set(SAMPLE_SETS / "tabletop_ball", 256)
+    res = detect_set(ps, get_preset("peer-homography").replace(max_side=256), PairCache(None), workers=1)
+    i = int(np.argmax([len(sup) for sup in res.supports]))
+    s = dataclasses.replace(Settings.for_preset("peer-homography", i, 256), supports=tuple(res.supports[i]))
+    terms = TermCache()
+    dyn = dynamic_prob(res, s, terms)
+    rep = compose.explain(res, s, terms, dyn, np.array([80.0, 60.0]))
+    f = rep.fusion
+    assert f.method == "median" and len(f.rows) == len(res.supports[i]) >= 2
+    assert f.p_raw == pytest.approx(float(dyn[60, 80]), abs=1e-5)       # no refinement in this preset
+    assert all(e.kind == "peer" and e.point is not None for e in rep.evidence)
+    assert "median" in compose.fusion_markdown(rep)
+
+
+def test_map_notice_says_when_nothing_is_marked():
+    from inspector import compose
+    dyn = np.linspace(0.02, 0.41, 100, dtype=np.float32).reshape(10, 10)
+    n = compose.map_notice("cam01", dyn, 0.5, 3)
+    assert n.empty and "0.02–0.41" in n.text and "0.50" in n.text
+    assert not compose.map_notice("cam01", dyn, 0.3, 3).empty
+    assert compose.map_notice("cam01", dyn, 0.3, 1).doubtful          # one support
+    assert compose.map_notice("cam01", np.full((4, 4), 0.5, np.float32), 0.6, 3).doubtful   # no evidence
