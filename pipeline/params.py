@@ -112,7 +112,12 @@ class SweepParams:
     ground_planes: int = 0             # planes parallel to the set's ground (when it has one), ground to camera
     window: int = 7                    # SSIM window on the sweep grid (14 px at 640)
     lab_weights: tuple[float, float, float] = (1.0, 2.0, 2.0)   # L, a, b: colour counts double
-    direct_homography: bool = True     # homography pairs without cameras: SSIM of the aligned pixels as well
+    direct_homography: bool = True     # homography pairs without cameras: SSIM of the aligned pixels as well,
+    direct_max_parallax_frac: float = 0.005  # when their residual parallax is this small (3 px at 640)
+    direct_reach_frac: float = 0.0     # and only inside the hull of the H inliers (and this x max side beyond)
+    full_support: int = 1              # the cue counts in full where this many supports see the point
+    min_seen_share: float = 0.0        # a plane counts where at least this share of the most supports seeing
+                                       # the point at any plane see it (0: every plane, EVIDENCE_NOTES)
     lightness_mean: bool = True        # SSIM's luminance term on L (False: structure only on L)
     blur: float = 0.0                  # Gaussian sigma (grid px) before comparing
     best_share: float = 0.5            # fuse the best half of the supports that see a point (occlusion)

@@ -99,7 +99,11 @@ class SetResult:
         f = self.fused(i, supports, p)
         if f is None:
             return None
-        return self._upsample(i, np.nan_to_num(calibrated_log_odds(f.cost, p), nan=0.0))
+        # a point that one support alone sees has no agreement to speak of: the cue counts in full
+        # from `sweep.full_support` supports on, in proportion below
+        trust = np.clip((f.n_seen.astype(np.float32) - 1.0) / max(p.sweep.full_support - 1, 1), 0.0, 1.0) \
+            if p.sweep.full_support > 1 else 1.0
+        return self._upsample(i, trust * np.nan_to_num(calibrated_log_odds(f.cost, p), nan=0.0))
 
     def static_log_odds(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
         """Evidence that photo i's pixels are static, as log-odds (h, w) float32: Eq. 3's term of
@@ -302,14 +306,16 @@ def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None)
         r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, p)
     if sweep_args is not None:
         r = dataclasses.replace(r, sweep=sweep_pair(i, j, rgb_i, normalised, *sweep_args, p.sweep))
-    elif g.is_homography and p.sweep.enabled and p.sweep.direct_homography:
+    elif g.is_homography and p.sweep.enabled and p.sweep.direct_homography \
+            and g.uncertainty_px <= p.sweep.direct_max_parallax_frac * max(rgb_i.shape[:2]):
         # shots from one spot without cameras: compare the aligned pixels directly, where H is trusted
         h, w = rgb_i.shape[:2]
         warped, inside = aligned_support(rgb_j, g.H, (h, w))
         if p.descriptors.color_normalise:
             warped = normalise_aligned(rgb_i, warped, inside > 0)
-        if p.patches.homography_reach_frac > 0:
-            inside = inside * (reach_distance(g.inliers_ref, (h, w)) <= p.patches.homography_reach_frac * max(h, w))
+        # pixels compared directly must lie where H is confirmed: inside the hull of its inliers (and
+        # `direct_reach_frac` beyond); parallax past it reads as change at once, unlike the patch search
+        inside = inside * (reach_distance(g.inliers_ref, (h, w)) <= p.sweep.direct_reach_frac * max(h, w))
         r = dataclasses.replace(r, sweep=aligned_pair(i, j, rgb_i, warped, inside.astype(np.float32), p.sweep))
     return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
 
@@ -656,8 +662,9 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                                     g.inliers_ref, g.inliers_sup), str(params.geometry.peer_homography)]
             if (i, j) in swept:
                 parts += [params.sweep_key_material(), _digest_arrays(*cam(i), *cam(j), inv[i])]
-            elif g.is_homography and params.sweep.enabled and params.sweep.direct_homography:
-                parts += [params.sweep_key_material(), "aligned"]
+            elif g.is_homography and params.sweep.enabled and params.sweep.direct_homography \
+                    and g.uncertainty_px <= params.sweep.direct_max_parallax_frac * max(photos[i].size):
+                parts += [params.sweep_key_material(), "aligned", str(params.patches.homography_reach_frac)]
             pkey[(i, j)] = cache_mod.key("pair", *parts)
 
         def load(ij, data):

@@ -255,7 +255,7 @@ def fuse(pairs: list[SweepPair], sp: SweepParams) -> Fused:
     assert pairs, "no support to fuse"
     D = max(p.cost.shape[2] for p in pairs)
     stack = np.stack([np.broadcast_to(p.cost, (*p.cost.shape[:2], D)) for p in pairs])
-    cost, plane, n_seen, per = _fuse_kernel(stack, float(sp.best_share))
+    cost, plane, n_seen, per = _fuse_kernel(stack, float(sp.best_share), float(sp.min_seen_share))
     per = np.where(per == UNSEEN, np.nan, per.astype(np.float32) / SCALE).astype(np.float32)
     return Fused(np.where(plane >= 0, cost, np.nan).astype(np.float32), plane, n_seen, per)
 
@@ -266,7 +266,7 @@ def _fuse_numba():
     import numba
 
     @numba.njit(parallel=True, cache=True, nogil=True)
-    def kernel(stack, share):
+    def kernel(stack, share, min_seen_share):
         S, H, W, D = stack.shape
         cost = np.zeros((H, W), np.float32)
         plane = np.full((H, W), -1, np.int16)
@@ -278,6 +278,16 @@ def _fuse_numba():
                 best = 1e9
                 bp = -1
                 bn = 0
+                # a plane seen by few of the supports that could see the point is no agreement: it
+                # would win by having fewer costs to average (min_seen_share of the most at any plane)
+                n_max = 0
+                for d in range(D):
+                    n = 0
+                    for s_ in range(S):
+                        if stack[s_, y, x, d] != UNSEEN:
+                            n += 1
+                    n_max = max(n_max, n)
+                n_min = max(1, int(np.ceil(n_max * min_seen_share)))
                 for d in range(D):
                     n = 0
                     for s_ in range(S):
@@ -285,7 +295,7 @@ def _fuse_numba():
                         if v != UNSEEN:
                             vals[n] = v
                             n += 1
-                    if n == 0:
+                    if n < n_min:
                         continue
                     k = max(int(np.ceil(n * share)), 1)
                     total = 0
