@@ -50,9 +50,13 @@ MAIN_WIDTH = 340            # the right (controls) panel, px
 SIDE_WIDTH = 400            # the left (evidence) panel, px
 KEY_WIDTH = 312             # pictures at the width they are shown at (panel less its padding)
 CHART_WIDTH = 370
-BRAND_RGB = (24, 100, 171)  # buttons, active tabs: white on it is 6:1
+BRAND_RGB = (14, 70, 130)   # viser's palette of it gives buttons and active tabs (22, 108, 201): 5.2:1 on white
 STRAIGHT_COS = float(np.cos(np.deg2rad(0.3)))      # a camera turned more than this is put back
 
+PAIR_HINTS = {"ok": "epipolar pair: the point is searched along its epipolar line in this photo (§3.1); "
+                           "untick to leave this photo out of the fusion (Eq. 3)",
+              "homography": "homography pair: this photo is aligned to the reference by one homography (a shot "
+                            "from the same spot, or a far or flat scene; ours); untick to leave it out"}
 HINT_PRESET = ("default: ours (the paper's method plus a depth cue, homography pairs, colour normalisation and "
                "smoothing); paper: the paper's method unchanged; peer-homography: a simple 2-D baseline (align "
                "each photo by one homography and compare colours), for comparison.")
@@ -68,7 +72,9 @@ HINT_BEST_SET = ("Set the one threshold that gives the whole set the highest mea
 # Controls in light grey on white (Mantine's 'dimmed', 3.3:1) read badly: a darker grey (8.6:1).
 PAGE_STYLE = """<style>
 :root, :root[data-mantine-color-scheme="light"] { --mantine-color-dimmed: #454c53 !important; }
+.mantine-Slider-markLabel { color: #454c53 !important; }
 .u-legend, .u-legend .u-value { color: #212529 !important; }
+.mantine-Notification-description { color: #454c53 !important; }
 </style>"""
 # viser moves the camera on arrow keys (orbit) and W/A/S/D/Q/E unless a text field has the focus,
 # so an arrow key on a focused slider moved both. Keys whose target is a control (anything but
@@ -300,7 +306,7 @@ class Session:
                                                        outlines=(True, has_gt)), format="png")
         self.md_notice = gui.add_markdown("", visible=False)
         self.btn_best_img_top = gui.add_button("Use this photo's best threshold", visible=False,
-                                               hint=HINT_BEST_IMG, color="blue")
+                                               hint=HINT_BEST_IMG)
         self.btn_best_set_top = gui.add_button("Use the set's best threshold", visible=False, hint=HINT_BEST_SET)
         self.dd_ref = gui.add_dropdown("Reference", options=app.stems, initial_value=app.stems[s.ref],
                                        hint="The photo whose moving regions are shown; its supports are the other "
@@ -348,7 +354,7 @@ class Session:
                 series=(vu.Series(label="threshold"), vu.Series(label="Jaccard", stroke="#1f5fbf", width=2),
                         vu.Series(label="current", stroke="#c92a2a", width=2,
                                   points={"show": True, "size": 9, "fill": "#c92a2a"})),
-                scales={"x": vu.Scale(time=False, range=(0.0, 1.0)), "y": vu.Scale(range=(0.0, 1.0))},
+                scales={"x": vu.Scale(time=False, range=(0.0, 1.0)), "y": vu.Scale(range=(0.0, 1.05))},
                 axes=(vu.Axis(label="threshold", stroke="#212529"), vu.Axis(label="Jaccard", stroke="#212529")),
                 title="Jaccard vs threshold", aspect=1.8)
         with gui.add_folder("Export and Rerun"):
@@ -384,7 +390,7 @@ class Session:
                 data=(np.array([1.0, 2.0]), np.full(2, np.nan), np.full(2, np.nan)),
                 series=(vu.Series(label="supports"), vu.Series(label="J at threshold", stroke="#c92a2a", width=2),
                         vu.Series(label="best J", stroke="#1f5fbf", width=2)),
-                scales={"x": vu.Scale(time=False, range=(1.0, 2.0)), "y": vu.Scale(range=(0.0, 1.0))},
+                scales={"x": vu.Scale(time=False, range=(1.0, 2.0)), "y": vu.Scale(range=(0.0, 1.05))},
                 axes=(vu.Axis(label="supports", incrs=(1, 2, 5, 10, 20), stroke="#212529"),
                       vu.Axis(label="Jaccard", stroke="#212529")),
                 title="Jaccard vs number of supports", aspect=1.8, visible=bool(self.app.gts))
@@ -456,6 +462,9 @@ class Session:
                 self._version += 1
                 for b in (self.btn_best_set, self.btn_best_set_top):
                     b.label, b.disabled = f"Use the set's best threshold ({COMPUTING})", True
+                if self.report is not None:          # the old numbers stay visible, marked, until redrawn
+                    self.md_pixel.content = f"*Updating… ({COMPUTING})*"
+                self.md_export.content = ""          # a recording or saved files of other settings
             self.fast.request("main", "supports")
             self.slow.request("sweep", "pixel", "setbest")
         else:                                                             # threshold or view only
@@ -539,7 +548,7 @@ class Session:
             k = max(2, len(self._support_list(ref)))
             self.plot_sweep.data = (np.arange(1.0, k + 1), np.full(k, np.nan), np.full(k, np.nan))
             self.plot_sweep.scales = {"x": vu.Scale(time=False, range=(1.0, float(k))),
-                                      "y": vu.Scale(range=(0.0, 1.0))}
+                                      "y": vu.Scale(range=(0.0, 1.05))}
             self.md_export.content = ""
         self._fit_camera()
 
@@ -779,6 +788,9 @@ class Session:
                 continue
             state, why = model.pair_state(ref, j)
             stem = self.app.stems[j]
+            hint = {"ready": PAIR_HINTS.get(why, why), "computing": "this pair is being computed",
+                    "rejected": f"rejected by the geometry test: {why}", "unused": why,
+                    "unknown": "waiting for its pair"}[state]
             text = {"ready": stem + (" · homography" if why == "homography" else ""),
                     "computing": f"{stem} · computing…", "rejected": f"{stem} · rejected",
                     "unused": f"{stem} · not used", "unknown": f"{stem} · waiting"}[state]
@@ -791,12 +803,14 @@ class Session:
             if box is None:
                 with self.f_sup:
                     box = self.client.gui.add_checkbox(text, initial_value=value, disabled=state != "ready",
-                                                       hint=why, order=j)
+                                                       hint=hint, order=j)
                 box.on_update(lambda _ev, j=j, box=box: self._on_support(j, box))
                 self._boxes[j] = box
             else:
                 if box.label != text:
                     box.label = text
+                if box.hint != hint:
+                    box.hint = hint
                 if box.disabled != (state != "ready"):
                     box.disabled = state != "ready"
                 if state in ("rejected", "unused") and box.value:
@@ -954,7 +968,7 @@ class Session:
                 y1 = y2 = np.full(n, np.nan)
             self.plot_sweep.data = (x, y1, y2)
             self.plot_sweep.scales = {"x": vu.Scale(time=False, range=(1.0, float(n))),
-                                      "y": vu.Scale(range=(0.0, 1.0))}
+                                      "y": vu.Scale(range=(0.0, 1.05))}
         self._record("sweep", (self.app.stems[s.ref], k))
 
     def _set_best_key(self, snap, s: Settings) -> tuple:
@@ -1069,6 +1083,7 @@ class Session:
             with self._pub:
                 if epoch == self._epoch:
                     self.md_export.content = f"No map yet for {stem}: nothing to record."
+            self._record("rerun skipped", stem)
             return
         p = s.params()
         sups = usable_supports(snap, s)

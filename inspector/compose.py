@@ -479,9 +479,9 @@ def fusion_markdown(report: PixelReport) -> str:
 def evidence_markdown(report: PixelReport, stems: list[str]) -> str:
     """What each support found: evidence share, the best candidates' similarities, and its match
     at the shared depth."""
-    if not report.evidence:
-        return ""
-    lines = ["| support | evidence | best HOG | best colour | at the shared depth |", "|---|--:|--:|--:|--:|"]
+    if not report.evidence or all(e.kind == "peer" for e in report.evidence):
+        return ""           # the peer baseline compares aligned colours: no candidates, no depth
+    lines = ["| support | evidence | HOG | colour | shared depth |", "|---|--:|--:|--:|--:|"]
     depth_vals = report.depth_values or (float("nan"),) * len(report.values)
     for e, dv in zip(report.evidence, depth_vals):
         if e.patch is not None and len(e.patch.cand_quads):
@@ -528,10 +528,10 @@ HELP = """
   it) comes from patches that had any candidate in the support's view. 100 % = fully seen;
   0 % = the support does not see this point, and its P(x|I_s) is then the *No evidence* choice
   (0.5, no opinion, in `default`; 0, no match, in `paper`).
-- **best HOG / best colour**: the similarity of the best candidate (Eq. 1) of the covering patch
-  nearest the point: HOG compares shapes (gradients), colour compares hue–saturation
-  histograms (§3.1.2).
-- **at the shared depth**: this support's match probability at the depth all supports agreed on.
+- **HOG / colour**: the similarity of the best candidate (Eq. 1) of the covering patch nearest
+  the point: HOG compares shapes (gradients), colour compares hue–saturation histograms
+  (§3.1.2).
+- **shared depth**: this support's match probability at the depth all supports agreed on.
 - **–**: no value: the patch had no candidate (out of the support's view), or the pair is not in
   the depth sweep (no camera for it).
 """
