@@ -123,6 +123,8 @@ class SweepParams:
     best_share: float = 0.5            # fuse the best half of the supports that see a point (occlusion)
     ssim_c1: float = 1.0               # SSIM constants for Lab (L in 0..100): (0.01 * 100)^2, (0.03 * 100)^2
     ssim_c2: float = 9.0
+    color_weight: float = 0.0          # share of the cost from the windows' mean colour distance (Lab)
+    color_tau: float = 30.0            # that distance at which its cost saturates (a, b weighted)
     # Calibration of the fused cost into static log-odds, slope * (centre - cost): a cost of
     # `centre` is P_dynamic = 0.5 (crowdcam calibrate fits both on rendered sets not bundled).
     calib_slope: float = 12.0

@@ -179,6 +179,9 @@ def ssim_cost(ref: RefStats, sup: np.ndarray, valid: np.ndarray, k: int, sp: Swe
         lum[..., 0] = 1.0
     ssim = lum * (2 * cov + c2) / (ref.var + var + c2)
     cost = (1.0 - ssim.mean(axis=2)) * 0.5
+    if sp.color_weight > 0:
+        dist = np.linalg.norm(ref.mean - mu, axis=2)
+        cost = (1.0 - sp.color_weight) * cost + sp.color_weight * np.minimum(dist / sp.color_tau, 1.0)
     inside = _box(valid, k) > 0.999
     return np.where(inside, np.clip(cost, 0.0, 1.0), np.nan).astype(np.float32)
 
@@ -225,7 +228,8 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
         img, valid = warp(sup_lab, H, g_ref)
         # window sums by box filters (OpenCV), then SSIM and quantisation in one compiled pass
         per_plane[d] = _ssim_kernel(rs.lab, rs.mean, rs.var, _box(img, k), _box(img * img, k), _box(rs.lab * img, k),
-                                    _box(valid, k), float(sp.ssim_c1), float(sp.ssim_c2), lum_l)
+                                    _box(valid, k), float(sp.ssim_c1), float(sp.ssim_c2), lum_l,
+                                    float(sp.color_weight), float(sp.color_tau))
     cost = np.ascontiguousarray(per_plane.transpose(1, 2, 0))
     return SweepPair(ref, sup, cost, planes, time.perf_counter() - t0)
 
@@ -325,7 +329,7 @@ def _ssim_numba():
     import numba
 
     @numba.njit(cache=True, nogil=True)
-    def kernel(ref, ref_mean, ref_var, mu, sq, cross, inside, c1, c2, lum_l):
+    def kernel(ref, ref_mean, ref_var, mu, sq, cross, inside, c1, c2, lum_l, w_col, tau):
         H, W, C = mu.shape
         out = np.empty((H, W), np.uint8)
         for y in range(H):
@@ -334,9 +338,11 @@ def _ssim_numba():
                     out[y, x] = UNSEEN
                     continue
                 acc = 0.0
+                dist2 = 0.0
                 for c in range(C):
                     m1 = ref_mean[y, x, c]
                     m2 = mu[y, x, c]
+                    dist2 += (m1 - m2) * (m1 - m2)
                     v2 = max(sq[y, x, c] - m2 * m2, 0.0)
                     cv = cross[y, x, c] - m1 * m2
                     lum = (2 * m1 * m2 + c1) / (m1 * m1 + m2 * m2 + c1)
@@ -344,6 +350,8 @@ def _ssim_numba():
                         lum = 1.0
                     acc += lum * (2 * cv + c2) / (ref_var[y, x, c] + v2 + c2)
                 cost = (1.0 - acc / C) * 0.5
+                if w_col > 0.0:          # the windows' mean colours apart (Lab, a and b weighted)
+                    cost = (1.0 - w_col) * cost + w_col * min(np.sqrt(dist2) / tau, 1.0)
                 cost = min(max(cost, 0.0), 1.0)
                 out[y, x] = np.uint8(int(cost * SCALE + 0.5))
         return out
