@@ -44,8 +44,11 @@ NO_EVIDENCE = {"no opinion, 0.5 (ours)": "neutral", "no match (paper)": "no_matc
 BLANK = np.full((8, 8, 3), 255, np.uint8)
 COMPUTING = "computing…"
 MAP_OPTION = "the map (reference)"
-PIXEL_HINT = "**Click a point of the photo** to see why it is marked (or not): what each support photo said, " \
-             "and how their answers add up."
+PIXEL_HINT = ("**Click a point of the photo** to see why it is marked (or not).\n\n"
+              "How it works: every other photo of the scene that can be trusted (a *support*) is asked whether "
+              "it shows a look-alike of the patch around the point where that point can lie. If most find one, "
+              "the point is static (blue); if they do not, it has probably moved (red). The click shows each "
+              "support's answer, how the answers add up, and where each support was searched.")
 MAIN_WIDTH = 340            # the right (controls) panel, px
 SIDE_WIDTH = 400            # the left (evidence) panel, px
 KEY_WIDTH = 312             # pictures at the width they are shown at (panel less its padding)
@@ -206,10 +209,11 @@ class Inspector:
         session.start()
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
-        with self._lock:
-            session = self.sessions.pop(client.client_id, None)
+        session = self.sessions.get(client.client_id)
         if session is not None:
-            session.close()
+            session.close()                 # its threads are gone before the tab is forgotten
+        with self._lock:
+            self.sessions.pop(client.client_id, None)
 
     def rerun_viewer(self):
         """The loopback Rerun web viewer, started on first use (crowdcam.rerun_web)."""

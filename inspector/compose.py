@@ -383,7 +383,7 @@ def crops(snap: SetResult, report: PixelReport, e: PixelEvidence, width: int, si
                       f"match {dv:.2f}" if np.isfinite(dv) else ""))
     gap = 8
     n = len(items)
-    out = int(min(170, (width - gap * (n - 1)) / n))
+    out = int(min(max(170, width // 5), 240, (width - gap * (n - 1)) / n))
     cells = []
     size = int(min(size, max(10, out / 11)))
     for photo, centre, side_, quad, colour, title, sub in items:
