@@ -253,7 +253,8 @@ class Session:
     Never stale: a change of reference or preset bumps `_epoch` and clears every plot, text and
     link of the tab at once (under `_pub`, showing "computing…" where a value is not ready); a
     draw that started before publishes nothing (it checks the epoch under the same lock). Slow
-    draws also check `_version`, bumped with every settings change that asks them to redraw."""
+    draws also check the version of what they draw (`_versions`: "sweep", "pixel"), bumped by every
+    change that makes it outdated, together with a request to draw it again."""
 
     def __init__(self, app: Inspector, client: viser.ClientHandle):
         self.app = app
@@ -286,7 +287,7 @@ class Session:
         self._state_lock = threading.Lock()
         self._pub = threading.RLock()                       # publishing to the page vs. clearing it
         self._epoch = 0                                     # reference and preset
-        self._version = 0                                   # any settings the slow views depend on
+        self._versions = {"sweep": 0, "pixel": 0}         # what the slow views were last asked to show
         self._build()
         self.fast = Redrawer(f"tab{client.client_id}-fast", self._draw_fast)
         self.slow = Redrawer(f"tab{client.client_id}-slow", self._draw_slow)
@@ -463,7 +464,7 @@ class Session:
             return
         if dataclasses.replace(old, threshold=new.threshold) != new:      # the maps change
             with self._pub:
-                self._version += 1
+                self._bump("sweep", "pixel")
                 for b in (self.btn_best_set, self.btn_best_set_top):
                     b.label, b.disabled = f"Use the set's best threshold ({COMPUTING})", True
                 if self.report is not None:          # the old numbers stay visible, marked, until redrawn
@@ -475,7 +476,7 @@ class Session:
             self.fast.request("main")
             if new.threshold != old.threshold:
                 with self._pub:
-                    self._version += 1
+                    self._bump("sweep")
                 self.slow.request("sweep", "pixel_text")
         self._record("settings", new)           # last: a test that sees it finds the redraws asked for
 
@@ -526,7 +527,7 @@ class Session:
         has_gt = self.app.stems[ref] in self.app.gts
         with self._pub:
             self._epoch += 1
-            self._version += 1
+            self._bump("sweep", "pixel")
             if not keep_pixel:
                 self.pixel = None
             self.report, self.large, self.dyn, self.score = None, None, None, None
@@ -608,7 +609,7 @@ class Session:
             return
         self.pixel = np.array([np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)])
         with self._pub:
-            self._version += 1
+            self._bump("pixel")
             self.md_pixel.content = f"**Pixel ({self.pixel[0]:.0f}, {self.pixel[1]:.0f})**: {COMPUTING}"
         self.fast.request("main")
         self.slow.request("pixel")
@@ -720,6 +721,13 @@ class Session:
             if large is not None and report is not None and report.ref == ref and \
                     large in [e.sup for e in report.evidence]:
                 img = compose.large_view(snap, report, large, self.app.stems, self._large_width())
+            with self._pub:                 # the picture first, then its key and numbers
+                if epoch != self._epoch:
+                    return
+                if self._show_scene(img):
+                    self._fit_camera()
+                self.main_ms = (self.main_ms + [1000 * (time.perf_counter() - t0)])[-50:]
+                self.dyn = dyn
             n_sup = len(usable_supports(snap, s)) if snap is not None else 0
             notice = compose.map_notice(stem, dyn, s.threshold, n_sup)
             sc = score(self.app.photo_set, ref, dyn, gt, s.threshold) if gt is not None and dyn is not None else None
@@ -728,10 +736,7 @@ class Session:
             with self._pub:
                 if epoch != self._epoch:
                     return
-                if self._show_scene(img):
-                    self._fit_camera()
-                self.main_ms = (self.main_ms + [1000 * (time.perf_counter() - t0)])[-50:]
-                self.dyn, self.score, self.notice = dyn, sc, notice
+                self.score, self.notice = sc, notice
                 self.img_key.image = key
                 self._draw_notice(notice, sc)
                 self._draw_eval(ref, dyn, s.threshold, sc)
@@ -862,18 +867,23 @@ class Session:
         marker[int(np.argmin(np.abs(THRESHOLDS - threshold)))] = sc.at_threshold
         self.plot_eval.data = (THRESHOLDS, sc.curve, marker)
 
-    def _publishable(self, epoch: int, version: int) -> bool:
-        return epoch == self._epoch and version == self._version and not self._closed
+    def _bump(self, *views: str) -> None:
+        """What these slow views were drawing is outdated (call under _pub, with a redraw asked for)."""
+        for v in views:
+            self._versions[v] += 1
+
+    def _publishable(self, epoch: int, view: str, version: int) -> bool:
+        return epoch == self._epoch and version == self._versions[view] and not self._closed
 
     def _draw_slow(self, what: set[str]) -> None:
-        epoch, version = self._epoch, self._version
+        epoch, versions = self._epoch, dict(self._versions)
         model = self.app.model(self.settings.preset)
         snap = model.snapshot()
         if snap is None:
             return
         s = self.settings
         if "sweep" in what:
-            self._draw_sweep(snap, s, epoch, version)
+            self._draw_sweep(snap, s, epoch, versions["sweep"])
         if "setbest" in what:
             self._draw_set_best(snap, s, epoch)
         if "pixel" in what and self.pixel is not None:
@@ -881,7 +891,7 @@ class Session:
             dyn = compose.dynamic_prob(snap, s, self.app.terms)
             if dyn is None:
                 with self._pub:
-                    if self._publishable(epoch, version):
+                    if self._publishable(epoch, "pixel", versions["pixel"]):
                         self.md_pixel.content = "No support is ready for this reference yet."
                 return
             report = compose.explain(snap, s, self.app.terms, dyn, pixel, self.app.stems)
@@ -890,7 +900,7 @@ class Session:
                 self.slow_waiting.set()
                 self.hold_slow.wait(60)
             with self._pub:
-                if not self._publishable(epoch, version):
+                if not self._publishable(epoch, "pixel", versions["pixel"]):
                     return
                 self.report = report
                 self._publish_pixel(report, parts)
@@ -898,12 +908,13 @@ class Session:
             if self.large is not None:
                 self.fast.request("main")
             what = what - {"pixel_text"}
-        if "pixel_text" in what and self.report is not None and self.report.ref == s.ref:
+        if "pixel_text" in what and self.report is not None and self.report.ref == s.ref and \
+                self.pixel is not None and np.array_equal(self.report.xy, self.pixel):
             report = dataclasses.replace(self.report, fusion=dataclasses.replace(
                 self.report.fusion, threshold_at=compose.threshold_at(self.report.fusion, s.threshold)))
             chart = self._fusion_chart(report)
             with self._pub:
-                if self._publishable(epoch, version):
+                if self._publishable(epoch, "pixel", versions["pixel"]):
                     self.md_pixel.content = compose.verdict_markdown(report, self.app.stems[s.ref], s.threshold)
                     self.img_fusion.image = chart
 
@@ -929,7 +940,6 @@ class Session:
         self.md_pixel.content = parts["verdict"]
         options = [MAP_OPTION] + [f"{self.app.stems[e.sup]} · P {v:.2f}" for e, v in zip(report.evidence,
                                                                                            report.values)]
-        current = self.dd_large.value
         self.dd_large.options = options
         if self.large is not None and self.large not in [e.sup for e in report.evidence]:
             self.large = None
@@ -937,7 +947,6 @@ class Session:
             self.dd_large.value = MAP_OPTION
         else:
             self.dd_large.value = next(o for o in options if o.split(" ")[0] == self.app.stems[self.large])
-        del current
         self.dd_large.disabled = False
         self.img_fusion.image = parts["chart"]
         self.md_fusion.content = parts["fusion"]
@@ -954,7 +963,7 @@ class Session:
         img = compose.sweep_mosaic(view, self.app.stems, s.threshold,
                                    [x.at_threshold for x in scores] if scores else None)
         with self._pub:
-            if not self._publishable(epoch, version):
+            if not self._publishable(epoch, "sweep", version):
                 return
             self.img_sweep.image = img
             if not view.maps:
