@@ -532,6 +532,9 @@ def build_parser() -> argparse.ArgumentParser:
     common(c)
     c.set_defaults(fn=cmd_calibrate)
 
+    from crowdcam.report import add_parser as add_report_parser
+    add_report_parser(sub, common)
+
     m = sub.add_parser("make-samples", help="render the bundled synthetic sample sets")
     m.add_argument("--out", default=str(SAMPLE_SETS))
     m.add_argument("--only", action="append", help="render only this set (repeatable)")
