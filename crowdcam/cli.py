@@ -47,7 +47,7 @@ class Reporter:
         if stage != self._stage:
             self.close()
             self._stage = stage
-            self._bar = tqdm(total=total, desc=f"{stage:>9}", unit="pair" if stage != "features" else "img",
+            self._bar = tqdm(total=total, desc=f"{stage:>9}", unit={"features": "img", "screen": "set"}.get(stage, "pair"),
                              file=sys.stderr, leave=False, dynamic_ncols=True)
         self._bar.n = done
         self._bar.refresh()
@@ -400,7 +400,7 @@ def cmd_bench(args) -> int:
 
 def cmd_make_samples(args) -> int:
     from crowdcam.scenegen import SETS, write_set
-    names = args.only or list(SETS)
+    names = args.only or [k for k, spec in SETS.items() if spec.bundled]
     for n in names:
         if n not in SETS:
             raise CliError(f"unknown sample set {n!r}; choose from {', '.join(SETS)}")
@@ -537,7 +537,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("make-samples", help="render the bundled synthetic sample sets")
     m.add_argument("--out", default=str(SAMPLE_SETS))
-    m.add_argument("--only", action="append", help="render only this set (repeatable)")
+    m.add_argument("--only", action="append",
+                   help="render only this set (repeatable; plaza_crowd_100, the 100-photo scale benchmark, only so)")
     m.add_argument("--scale", type=float, default=1.0, help="image size factor (tests use small sets)")
     m.set_defaults(fn=cmd_make_samples)
     return ap

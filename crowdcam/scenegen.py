@@ -484,6 +484,7 @@ class SetSpec:
     seed: int
     build: Callable[[np.random.Generator], tuple[Callable[[float], Scene], list[Camera], list[float]]]
     look_strength: float = 1.0     # scales the cameras' colour and exposure differences
+    bundled: bool = True           # rendered by `make-samples` by default and shipped in sample_sets/
 
 
 def _square_textures(rng) -> dict:
@@ -794,6 +795,19 @@ def build_low_collinear(rng):
     return scene_at, cams, list(rng.permutation(np.linspace(0, 5, n)))
 
 
+def build_plaza_crowd(rng, n: int = 100):
+    """plaza_many's movers seen by `n` phones on a ring all around the square: a set the size of a
+    crowd-sourced event, where a photo overlaps with its neighbours on the ring only (the scale
+    benchmark; not bundled)."""
+    scene_at, _, _ = build_plaza_many(rng)
+    ring = _arc_cameras(rng, 2 * n, (0, 2), 11.0, (-np.pi, np.pi), (1.3, 4.5), (0.7, 1.2), SIZES, target_jitter=3.0)
+    # nobody stands inside a tree crown or the kiosk (_square_static)
+    obstacles = np.array([[-8.5, 4.0, 3.0], [9.0, 9.5, 3.2], [3.5, 7.0, 2.5]])
+    free = [c for c in ring if np.all(np.hypot(*(c.C[:2, None] - obstacles[:, :2].T)) > obstacles[:, 2])]
+    cams = [free[k] for k in np.sort(rng.choice(len(free), n, replace=False))]
+    return scene_at, cams, list(rng.permutation(np.linspace(0, 6.0, n)))
+
+
 SETS: dict[str, SetSpec] = {s.name: s for s in [
     SetSpec("square_people", "three people walking across a town square (8 cameras)", 8, 11, build_square_people),
     SetSpec("tabletop_ball", "a ball rolling across a table in a room (7 cameras)", 7, 22, build_tabletop_ball),
@@ -811,6 +825,8 @@ SETS: dict[str, SetSpec] = {s.name: s for s in [
             build_square_same_spot),
     SetSpec("arc_wide_ground", "a wide square of textured paving seen from a wide arc, two walkers (10 cameras)",
             10, 99, build_arc_wide_ground),
+    SetSpec("plaza_crowd_100", "plaza_many's movers seen by 100 phones all around the square (scale benchmark)",
+            100, 123, build_plaza_crowd, bundled=False),
     SetSpec("low_collinear", "six low cameras nearly on one line, looking the same way, two walkers", 6, 111,
             build_low_collinear),
 ]}

@@ -767,7 +767,7 @@ class Session:
             text = f"Ready: {len(model.results)} pairs ({model.preset} preset) in {model.seconds:.1f} s."
         else:
             what = {"pairs": "Matching pairs", "geometry": "Estimating geometry",
-                    "features": "Finding features"}.get(stage, "Starting")
+                    "features": "Finding features", "screen": "Choosing which pairs to compare"}.get(stage, "Starting")
             text = f"{what}: {done} / {total} ({model.preset} preset). Maps fill in as pairs finish."
         if model.warnings:
             text += "\n\n" + "\n".join(f"- {w}" for w in model.warnings[-3:])

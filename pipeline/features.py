@@ -13,12 +13,14 @@ class Features:
     """Keypoints of one photo at working resolution.
 
     xy: (N, 2) float32 pixel positions; size: (N,) float32 keypoint diameters;
-    desc: (N, 128) float32 RootSIFT descriptors.
+    desc: (N, 128) float32 RootSIFT descriptors; response: (N,) float32 detector responses
+    (screen.py keeps the strongest), None when unknown.
     """
 
     xy: np.ndarray
     size: np.ndarray
     desc: np.ndarray
+    response: np.ndarray | None = None
 
 
 def detect(rgb: np.ndarray, n_features: int, contrast: float = 0.04) -> Features:
@@ -32,7 +34,8 @@ def detect(rgb: np.ndarray, n_features: int, contrast: float = 0.04) -> Features
     desc = np.sqrt(desc).astype(np.float32)
     xy = np.array([k.pt for k in kps], dtype=np.float32)
     size = np.array([k.size for k in kps], dtype=np.float32)
-    return Features(xy, size, desc)
+    response = np.array([k.response for k in kps], dtype=np.float32)
+    return Features(xy, size, desc, response)
 
 
 def _two_nearest(a: np.ndarray, b: np.ndarray, chunk: int = 2048):

@@ -31,6 +31,10 @@ class GeometryParams:
     triplet_check: bool = False        # paper: two-view tests only; default: pairs must agree across triplets
     triplet_max_px: float = 4.0        # median chained epipolar distance for a consistent triplet
     peer_homography: bool = False      # the peer baseline (peer.py): every pair aligned by one homography
+    # Large sets (screen.py; departure: the paper's sets are small and every pair is tried).
+    screen_above: int = 16             # sets of more photos compare only the pairs a cheap screen picks
+    screen_keep: int = 12              # each photo's partners with the most shared strong features
+    screen_features: int = 256         # strongest keypoints per photo that the screen matches
     # Cameras for the whole set (reconstruction.py; departure, default preset). paper: two-view F's only.
     reconstruction: bool = False
     recon_min_matches: int = 15        # a pair's verified matches enter the reconstruction from this many

@@ -31,7 +31,8 @@ from .photometric import normalise_to_reference
 from .refine import refine
 from .reconstruction import SetCameras, apply_reconstruction, ground_plane, reconstruct
 from .store import PairStore, light_of
-from .support import PairGeometry, cap_supports, estimate_pair, support_sets, triplet_check
+from .screen import screen_pairs, shared_features
+from .support import PairGeometry, cap_supports, estimate_pair, not_compared, support_sets, triplet_check
 from .peer import PeerPair, difference, dynamic_from_differences
 from .homography import aligned_support, reach_distance
 from .photometric import normalise_aligned
@@ -568,23 +569,17 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     try:
         # 1-2. Geometry per unordered pair, cached; features only when some pair needs them.
         t0 = time.perf_counter()
-        gkey = {(i, j): cache_mod.key("geometry", photos[i].key, photos[j].key, params.geometry_key_material())
-                for i in range(n) for j in range(i + 1, n)}
-        pairs: dict[tuple[int, int], PairGeometry] = {}
-        todo = []
-        for ij, k in gkey.items():
-            g = cache.load("geometry", k, lambda d: cache_mod.from_bytes(PairGeometry, d))
-            if g is not None:
-                pairs[ij] = g
-            else:
-                todo.append(ij)
+        gp = params.geometry
         kkey = [cache_mod.key("keypoints", p.key, params.geometry_key_material()) for p in photos]
         keypoints: list[np.ndarray | None] = [None] * n
         for i in range(n):
             keypoints[i] = cache.load("keypoints", kkey[i], lambda d: np.load(io.BytesIO(d)))
-        if todo or any(k is None for k in keypoints):
-            need = sorted({i for ij in todo for i in ij} | {i for i in range(n) if keypoints[i] is None})
-            feats: dict[int, Features] = {}
+        feats: dict[int, Features] = {}
+
+        def ensure_features(idx) -> None:
+            need = sorted(set(idx) - set(feats))
+            if not need:
+                return
             done = [0]
 
             def got_features(res):
@@ -596,7 +591,41 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 cache.put("keypoints", kkey[res[0]], buf.getvalue())
                 done[0] += 1
                 progress("features", done[0], len(need))
-            runner.map(_task_features, [(i,) for i in need], got_features, label=lambda a: f"the features of {photos[a[0]].path}")
+            runner.map(_task_features, [(i,) for i in need], got_features,
+                       label=lambda a: f"the features of {photos[a[0]].path}")
+
+        all_pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+        compared = all_pairs
+        pairs: dict[tuple[int, int], PairGeometry] = {}
+        if n > gp.screen_above:          # a large set: geometry only for the pairs the screen picks
+            skey = cache_mod.key("screen", *(p.key for p in photos), params.geometry_key_material())
+            shared = cache.load("screen", skey, lambda d: np.load(io.BytesIO(d)))
+            if shared is None or shared.shape != (n, n):
+                ensure_features(range(n))
+                progress("screen", 0, 1)
+                shared = shared_features([feats[i] for i in range(n)], gp.screen_features, gp.ratio)
+                buf = io.BytesIO()
+                np.save(buf, shared)
+                cache.put("screen", skey, buf.getvalue())
+                progress("screen", 1, 1)
+            screen = screen_pairs(shared, gp.screen_keep)
+            compared = list(screen.pairs)
+            kept = set(compared)
+            for i, j in all_pairs:
+                if (i, j) not in kept:
+                    pairs[(i, j)] = not_compared(i, j, screen.reason(i, j, gp.screen_features))
+            timings["screen_pairs"] = len(compared)
+        gkey = {(i, j): cache_mod.key("geometry", photos[i].key, photos[j].key, params.geometry_key_material())
+                for i, j in compared}
+        todo = []
+        for ij, k in gkey.items():
+            g = cache.load("geometry", k, lambda d: cache_mod.from_bytes(PairGeometry, d))
+            if g is not None:
+                pairs[ij] = g
+            else:
+                todo.append(ij)
+        if todo or any(k is None for k in keypoints):
+            ensure_features({i for ij in todo for i in ij} | {i for i in range(n) if keypoints[i] is None})
             gdone = [0]
 
             def got_geometry(res):
@@ -608,6 +637,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 progress("geometry", gdone[0], len(todo))
             runner.map(_task_geometry, [(i, j, feats[i], feats[j]) for i, j in todo], got_geometry,
                        label=lambda a: f"the geometry of {photos[a[0]].name} and {photos[a[1]].name}")
+        feats.clear()                    # descriptors: 4 MB a photo, not needed from here on
         cameras = None
         if params.geometry.reconstruction:
             cameras = set_cameras(photo_set, params, pairs, keypoints, cache)

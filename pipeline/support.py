@@ -101,6 +101,13 @@ class PairGeometry:
                 "uncertainty_px": None if not np.isfinite(self.uncertainty_px) else round(self.uncertainty_px, 2)}
 
 
+def not_compared(i: int, j: int, reason: str) -> PairGeometry:
+    """A rejected pair whose geometry was not estimated (screen.py left it out)."""
+    empty = np.zeros((0, 2), np.float32)
+    return PairGeometry(i, j, None, REJECTED, reason, 0, 0, 0.0, 0.0, float("nan"), 1.0, empty, empty, empty, empty,
+                        inlier_idx=np.zeros((0, 2), np.int32), match_idx=np.zeros((0, 2), np.int32))
+
+
 def _fit_f(p_ref: np.ndarray, p_sup: np.ndarray, thr: float, seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
     if len(p_ref) < 8:
         return None, np.zeros(len(p_ref), bool)
