@@ -183,7 +183,16 @@ def write_report(res, galleries: dict[int, Gallery], gts: dict, out: Path, set_a
 
 
 def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, scores) -> None:
+    from pipeline.evaluate import THRESHOLDS, jaccard_curve
+    from pipeline.output import to_original
     ps, p = res.photo_set, res.params
+    best = {}                        # per photo with ground truth: (best threshold, its Jaccard)
+    for i in galleries:
+        stem = ps.photos[i].stem
+        if stem in gts:
+            curve = jaccard_curve(to_original(res.dynamic[i], ps.photos[i]), gts[stem])
+            k = int(np.argmax(curve))
+            best[stem] = (float(THRESHOLDS[k]), float(curve[k]))
     (stage / "img").mkdir()
     from pipeline.matching import patch_length
     pad = 2 * patch_length(p)
@@ -218,7 +227,8 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
         md += [line, ""]
         body.append(f"<p>{html.escape(line)}</p>")
     # overview table
-    head = ["photo", "supports", "Jaccard at threshold", "missed movers", "static lit up"] if has_gt else \
+    head = ["photo", "supports", "Jaccard at threshold", "best threshold (Jaccard)", "missed movers",
+            "static lit up"] if has_gt else \
         ["photo", "supports", "uncertain regions"]
     md += ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     trs = []
@@ -227,7 +237,9 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
         cells = [f"[{stem}](#{_anchor(stem)})", str(len(res.supports[i]))]
         if has_gt:
             j = scores.get(stem)
-            cells += ["–" if j is None else f"{j:.2f}", str(g.counts.get(MISSED, 0)), str(g.counts.get(FALSE_ALARM, 0))]
+            b = best.get(stem)
+            cells += ["–" if j is None else f"{j:.2f}", "–" if b is None else f"{b[0]:.3f} ({b[1]:.2f})",
+                      str(g.counts.get(MISSED, 0)), str(g.counts.get(FALSE_ALARM, 0))]
         else:
             cells += [str(g.counts.get(UNCERTAIN, 0))]
         md.append("| " + " | ".join(cells) + " |")

@@ -37,6 +37,7 @@ SEEN_SHARE = 0.5          # a support "sees" a region when it has candidates for
 VOTE_MARGIN = 0.05        # P(x|I_s) above 0.5 + margin votes "static" (a match), below 0.5 - margin "moving"
 COLOUR_DEPARTURE = 0.15   # a descriptor this far from its photo-wide mean (normalised) departs
 LOOKALIKE_PATCHES = 1.5   # best candidate this many patch lengths from the expected point: a look-alike
+MAX_EXPLAINED = 4         # candidates are looked up for at most this many supports per region (the surest)
 
 
 @dataclass(frozen=True)
@@ -381,7 +382,7 @@ def diagnose(ev: ReferenceEvidence, region: Region, probes: dict[str, StripProbe
             look.append((ev.supports[s], pr))
         if look:
             share = len(look) / max(int(wrong.sum()), 1)
-            parts = [f"{stem}: best HOG candidate {pr.cand_px:.0f} px from where the scene's depth puts the point "
+            parts = [f"{stem}: best HOG candidate {pr.cand_px:.0f} px from where the depth of its surroundings puts the point "
                      f"(similarity {pr.cand_sim:.2f}" + (f"; {pr.near_sim:.2f} there)" if np.isfinite(pr.near_sim)
                                                          else "; none there)") for stem, pr in look]
             out.append(Diagnosis("lookalike", "a look-alike along the strip", "; ".join(parts),
@@ -394,7 +395,7 @@ def diagnose(ev: ReferenceEvidence, region: Region, probes: dict[str, StripProbe
     #    (HOG's normalised confidences run higher than colour's everywhere; only a departure is
     #    news) in the direction of the error, while the other does not; judged on the supports
     #    that vote the wrong way (or all that see it, when none does)
-    pick = wrong if wrong.any() else sees
+    pick = wrong if (wrong.any() or region.kind != UNCERTAIN) else sees     # no wrong vote: the strips did not fail
     if pick.any():
         hog, col = np.nanmean(np.where(pick, f["hog"], np.nan)), np.nanmean(np.where(pick, f["colour"], np.nan))
         hog0, col0 = ev.typical_hog_colour()
@@ -444,18 +445,20 @@ def diagnose(ev: ReferenceEvidence, region: Region, probes: dict[str, StripProbe
     if ev.depth_cost is not None and "depth_cost" in f and np.isfinite(f["depth_cost"][0]):
         c = float(f["depth_cost"][0])
         strips = float(np.nanmean(np.where(sees, p, np.nan))) if n_see else np.nan
+        # the more of the strips vote the right way, the more the depth cue alone is to blame
+        alone = float(right.sum()) / max(n_see, 1)
         if region.kind == FALSE_ALARM and c > ev.depth_centre and not (np.isfinite(strips) and strips < 0.5):
             out.append(Diagnosis("depth", "no common depth found",
                                  f"the depth sweep finds no depth at which the supports agree (fused cost {c:.2f}, "
                                  f"neutral at {ev.depth_centre:.2f}) while the strips say match "
-                                 f"(mean P(x|I_s) {_fmt(strips)})",
-                                 float(np.clip(0.5 + 2 * (c - ev.depth_centre), 0.5, 0.85)),
+                                 f"(mean P(x|I_s) {_fmt(strips)}, {int(right.sum())} of {n_see} supports)",
+                                 float(np.clip(0.45 + 2 * (c - ev.depth_centre) + 0.35 * alone, 0.5, 0.85)),
                                  {"depth_cost": _r(c), "centre": ev.depth_centre, "strips_p": _r(strips)}))
         elif region.kind == MISSED and c < ev.depth_centre:
             out.append(Diagnosis("depth", "the supports agree on a depth",
                                  f"the depth sweep finds a depth at which the supports agree (fused cost {c:.2f}, "
                                  f"below the neutral {ev.depth_centre:.2f}): the mover looks like what the supports see "
-                                 "there", float(np.clip(0.5 + 2 * (ev.depth_centre - c), 0.5, 0.85)),
+                                 "there", float(np.clip(0.45 + 2 * (ev.depth_centre - c) + 0.35 * alone, 0.5, 0.85)),
                                  {"depth_cost": _r(c), "centre": ev.depth_centre, "strips_p": _r(strips)}))
 
     # 7. the strips themselves: most supports that see it vote the wrong way (no finer cause found)
@@ -485,13 +488,17 @@ def _r(v, nd: int = 2):
     return round(v, nd) if np.isfinite(v) else None
 
 
-def gallery_from_evidence(ev: ReferenceEvidence, max_per_kind: int = 5, probe=None) -> Gallery:
+def gallery_from_evidence(ev: ReferenceEvidence, max_per_kind: int = 5, probe=None, min_area: int | None = None,
+                          open_px: int | None = None) -> Gallery:
     """Regions of one reference (find_regions, ranked) and the first `max_per_kind` of each kind
-    diagnosed. probe(region) -> {support stem: StripProbe}, optional (needs the pipeline run)."""
+    diagnosed. probe(region) -> {support stem: StripProbe}, optional (needs the pipeline run).
+    By default a region must hold a disc of a quarter patch (open_px) and a quarter of a patch's
+    area (min_area: (L/2)^2 px, 144 at 640 px)."""
     L = ev.patch_px
     u = None if ev.gt is not None else uncertainty_map(ev.dynamic, ev.threshold, ev.match_prob, ev.evidence)
-    regions = find_regions(ev.dynamic, ev.threshold, ev.gt, min_area=max(9, (L // 2) ** 2),
-                           open_px=max(3, (L // 4) | 1), uncertainty=u)
+    regions = find_regions(ev.dynamic, ev.threshold, ev.gt,
+                           min_area=max(9, (L // 2) ** 2) if min_area is None else min_area,
+                           open_px=max(3, (L // 4) | 1) if open_px is None else open_px, uncertainty=u)
     counts: dict[str, int] = {}
     entries = []
     for r in regions:
@@ -579,6 +586,24 @@ def scene_depth_around(res, i: int, region: Region, ring_px: int | None = None) 
     return float(np.median(z)) if len(z) else float("nan")
 
 
+def strip_probe(support: str, F: np.ndarray, xy, expected, cand_centres: np.ndarray | None = None,
+                cand_sims: np.ndarray | None = None, best: int = -1, near_px: float = 0.0) -> StripProbe:
+    """A StripProbe from plain geometry: F (3, 3) with x_sup^T F x_ref = 0; xy (2,) the reference
+    pixel; expected (2,) where the point is in the support; cand_centres (C, 2) and cand_sims (C,)
+    the strip's candidates with `best` the index of the best one (optional); near_px: how close
+    to `expected` a candidate must be to count as "there"."""
+    expected = np.asarray(expected, np.float64).reshape(2)
+    line = np.asarray(F, np.float64) @ np.array([float(xy[0]), float(xy[1]), 1.0])
+    line_px = float(abs(line @ np.append(expected, 1.0)) / max(np.hypot(line[0], line[1]), 1e-12))
+    cand_px = cand_sim = near_sim = float("nan")
+    if cand_centres is not None and len(cand_centres) and best >= 0:
+        dist = np.linalg.norm(np.asarray(cand_centres, np.float64) - expected, axis=1)
+        cand_px, cand_sim = float(dist[best]), float(cand_sims[best])
+        near = dist <= near_px
+        near_sim = float(np.max(cand_sims[near])) if near.any() else float("nan")
+    return StripProbe(support, expected, line_px, cand_px, cand_sim, near_sim)
+
+
 def probe_strips(res, i: int, region: Region, supports: list[int] | None = None,
                  explain: set[int] | None = None) -> dict[str, StripProbe]:
     """Strip probes at the region's pixel for the epipolar supports whose photos have cameras:
@@ -603,24 +628,18 @@ def probe_strips(res, i: int, region: Region, supports: list[int] | None = None,
         if q[2] <= 1e-9:
             continue
         exp = q[:2] / q[2]
-        line = res.pairs[(i, j)].F @ np.array([xy[0], xy[1], 1.0])
-        line_px = float(abs(line @ np.append(exp, 1.0)) / max(np.hypot(line[0], line[1]), 1e-12))
-        cand_px = cand_sim = near_sim = float("nan")
         ev = None
         if explain is None or j in explain:
             try:
                 ev = explain_pixel(res, i, j, xy)
             except cv2.error:           # a covering patch whose support strip holds no sample
                 ev = None
+        stem = res.photo_set.photos[j].stem
         if ev is not None and ev.patch is not None and ev.patch.best_hog >= 0:
-            centres = ev.patch.cand_quads.mean(axis=1)                   # (C, 2)
-            dist = np.linalg.norm(centres - exp, axis=1)
-            cand_px = float(dist[ev.patch.best_hog])
-            cand_sim = float(ev.patch.sim_hog[ev.patch.best_hog])
-            near = dist <= patch_length(res.params)
-            near_sim = float(ev.patch.sim_hog[near].max()) if near.any() else float("nan")
-        out[res.photo_set.photos[j].stem] = StripProbe(res.photo_set.photos[j].stem, exp, line_px, cand_px,
-                                                        cand_sim, near_sim)
+            out[stem] = strip_probe(stem, res.pairs[(i, j)].F, xy, exp, ev.patch.cand_quads.mean(axis=1),
+                                    ev.patch.sim_hog, ev.patch.best_hog, patch_length(res.params))
+        else:
+            out[stem] = strip_probe(stem, res.pairs[(i, j)].F, xy, exp)
     return out
 
 
@@ -637,7 +656,8 @@ def build_gallery(res, i: int, gt: np.ndarray | None = None, threshold: float | 
         def probe(r: Region) -> dict[str, StripProbe]:
             # candidates only where a look-alike can be the cause: supports saying "match" to a
             # mover or to an undecided region; line distances (cheap) for every support
-            says_match = _region_means(ev, r)["p"] > 0.5 + VOTE_MARGIN
-            explain = {stems.index(st) for st, m in zip(ev.supports, says_match) if m and r.kind != FALSE_ALARM}
+            p = _region_means(ev, r)["p"]
+            order = [s for s in np.argsort(-np.nan_to_num(p, nan=-1.0)) if p[s] > 0.5 + VOTE_MARGIN][:MAX_EXPLAINED]
+            explain = {stems.index(ev.supports[s]) for s in order} if r.kind != FALSE_ALARM else set()
             return probe_strips(res, i, r, explain=explain)
     return gallery_from_evidence(ev, max_per_kind, probe)
