@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .jit import LazyKernel
+
 REMAP_BLOCK = 4096    # cv2.remap maps must stay below 32767 per side: sample in blocks of columns
 
 
@@ -97,32 +99,64 @@ def strip_features(ch: ImageChannels, xy: np.ndarray, along: np.ndarray, across:
     valid = ((xy[..., 0] >= -0.5) & (xy[..., 0] <= w - 0.5) & (xy[..., 1] >= -0.5) & (xy[..., 1] <= h - 0.5))
     gx = _remap(ch.gx, xy, cv2.INTER_LINEAR)
     gy = _remap(ch.gy, xy, cv2.INTER_LINEAR)
-    ga = gx * along[None, :, 0] + gy * along[None, :, 1]
-    gc = gx * across[None, :, 0] + gy * across[None, :, 1]
-    mag = np.sqrt(ga * ga + gc * gc) * valid
-    ori = np.mod(np.arctan2(gc, ga), np.pi) * (hog_bins / np.pi) - 0.5        # bin centres at integers
-    b0 = np.floor(ori)
-    frac = (ori - b0).astype(np.float32)
-    b0 = np.mod(b0.astype(np.int64), hog_bins)
-    b1 = np.mod(b0 + 1, hog_bins)
-    # Linear interpolation into the two nearest orientation bins, summed per cell row.
-    cell_of_row = (np.arange(rows) * cells_across) // rows
-    # Scatter-add by bincount over flattened (cell row, along, bin) indices.
-    base = (cell_of_row[:, None] * n + np.arange(n)[None, :]) * hog_bins          # (rows, n)
-    size = cells_across * n * hog_bins
-    hog = (np.bincount((base + b0).ravel(), (mag * (1 - frac)).ravel(), minlength=size)
-           + np.bincount((base + b1).ravel(), (mag * frac).ravel(), minlength=size))
-    hog = hog.astype(np.float32).reshape(cells_across, n, hog_bins)
-    nb = hist_bins * hist_bins
-    cb = _remap(ch.color_bin, xy, cv2.INTER_NEAREST).astype(np.int64)
-    cidx = (np.arange(n)[None, :] * nb + cb)[valid]
-    color = np.bincount(cidx, minlength=n * nb).astype(np.float32).reshape(n, nb)
-    z3 = np.zeros((cells_across, 1, hog_bins), np.float32)
-    return StripFeatures(
-        hog_cum=np.concatenate([z3, np.cumsum(hog, axis=1, dtype=np.float32)], axis=1),
-        color_cum=np.concatenate([np.zeros((1, color.shape[1]), np.float32), np.cumsum(color, axis=0, dtype=np.float32)]),
-        valid_cum=np.concatenate([[0.0], np.cumsum(valid.sum(axis=0), dtype=np.float64)]).astype(np.float32),
-        rows=rows)
+    cb = _remap(ch.color_bin, xy, cv2.INTER_NEAREST)
+    cell_of_row = ((np.arange(rows) * cells_across) // rows).astype(np.int64)
+    hog_cum, color_cum, valid_cum = _strip_kernel(gx, gy, cb, valid, np.ascontiguousarray(along, np.float64),
+                                                  np.ascontiguousarray(across, np.float64), cell_of_row,
+                                                  cells_across, hog_bins, hist_bins * hist_bins)
+    return StripFeatures(hog_cum=hog_cum, color_cum=color_cum, valid_cum=valid_cum, rows=rows)
+
+
+def _strip_numba():
+    """strip_features' binning and running sums in one compiled pass over the samples (numba):
+    numpy spent most of a pair's time here, in full-size temporaries, bincounts and cumsums."""
+    import math
+
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def kernel(gx, gy, cb, valid, along, across, cell_of_row, cells_across, hog_bins, nb):
+        rows, n = gx.shape
+        hog_cum = np.zeros((cells_across, n + 1, hog_bins), np.float32)
+        color_cum = np.zeros((n + 1, nb), np.float32)
+        valid_cum = np.zeros(n + 1, np.float32)
+        cell = np.zeros((cells_across, hog_bins), np.float64)
+        count = np.zeros(nb, np.float32)
+        scale = hog_bins / np.pi
+        v_total = 0.0
+        for t in range(n):
+            cell[:] = 0.0
+            count[:] = 0.0
+            n_valid = 0
+            for r in range(rows):
+                if not valid[r, t]:
+                    continue
+                n_valid += 1
+                ga = gx[r, t] * along[t, 0] + gy[r, t] * along[t, 1]
+                gc = gx[r, t] * across[t, 0] + gy[r, t] * across[t, 1]
+                mag = math.sqrt(ga * ga + gc * gc)
+                # unsigned orientation, linear interpolation into the two nearest bins (centres at integers)
+                ori = (math.atan2(gc, ga) % np.pi) * scale - 0.5
+                b0f = math.floor(ori)
+                frac = ori - b0f
+                b0 = int(b0f) % hog_bins
+                b1 = (b0 + 1) % hog_bins
+                c = cell_of_row[r]
+                cell[c, b0] += mag * (1.0 - frac)
+                cell[c, b1] += mag * frac
+                count[cb[r, t]] += 1.0
+            for c in range(cells_across):
+                for b in range(hog_bins):
+                    hog_cum[c, t + 1, b] = hog_cum[c, t, b] + np.float32(cell[c, b])
+            for b in range(nb):
+                color_cum[t + 1, b] = color_cum[t, b] + count[b]
+            v_total += n_valid
+            valid_cum[t + 1] = v_total
+        return hog_cum, color_cum, valid_cum
+    return kernel
+
+
+_strip_kernel = LazyKernel(_strip_numba)
 
 
 @dataclass(frozen=True)

@@ -19,9 +19,10 @@ import numpy as np
 from .descriptors import (ImageChannels, color_similarity, hog_similarity, strip_features,
                           window_descriptors)
 from .geometry import epipoles
+from .jit import LazyKernel
 from .params import Params
 from .sweep import SweepPair
-from .patches import (RefStrips, SupportSegments, build_ref_strips, build_support_segments, iter_covering,
+from .patches import (RefStrips, SupportSegments, build_ref_strips, build_support_segments,
                       ref_frames, ref_sample_points, support_sample_points)
 
 
@@ -169,20 +170,7 @@ def match_pair(ref: int, sup: int, ch_ref: ImageChannels, ch_sup: ImageChannels,
     best_c = np.full(P, -1, np.int64)
     r_bounds = np.searchsorted(p_strip, np.arange(st.n_strips + 1))
     c_bounds = np.searchsorted(c_strip, np.arange(st.n_strips + 1))
-    for s in range(st.n_strips):          # one vectorised block per strip (patches x candidates)
-        r0, r1 = r_bounds[s], r_bounds[s + 1]
-        c0, c1 = c_bounds[s], c_bounds[s + 1]
-        if c1 == c0:
-            continue
-        rows = np.arange(r0, r1)[in_view[r0:r1]]
-        if len(rows) == 0:
-            continue
-        sim_h = hog_similarity(hog_r[rows], hog_c[c0:c1])
-        sim_c = color_similarity(wr.color[rows], col_c[c0:c1])
-        ih, ic = sim_h.argmax(axis=1), sim_c.argmax(axis=1)
-        conf_hog[rows] = sim_h[np.arange(len(rows)), ih]
-        conf_col[rows] = sim_c[np.arange(len(rows)), ic]
-        best_h[rows], best_c[rows] = c0 + ih, c0 + ic
+    best_candidates(hog_r, wr.color, in_view, r_bounds, hog_c, col_c, c_bounds, conf_hog, conf_col, best_h, best_c)
     has_cand = best_h >= 0
 
     def pick(a, idx):
@@ -199,6 +187,57 @@ def match_pair(ref: int, sup: int, ch_ref: ImageChannels, ch_sup: ImageChannels,
     return PairResult(ref, sup, hog_map, color_map, evidence, table, st, sg, sigma, time.perf_counter() - t_start)
 
 
+def best_candidates(hog_r: np.ndarray, col_r: np.ndarray, in_view: np.ndarray, r_bounds: np.ndarray,
+                    hog_c: np.ndarray, col_c: np.ndarray, c_bounds: np.ndarray, conf_hog: np.ndarray,
+                    conf_col: np.ndarray, best_h: np.ndarray, best_c: np.ndarray) -> None:
+    """Eq. 1 for every reference patch: the best similarity over the candidates of its strip,
+    HOG (cosine, hog_similarity) and colour (histogram IoU, color_similarity), and which candidate.
+
+    hog_r (P, D), col_r (P, B) float32 reference descriptors, sorted by strip with r_bounds
+    (S + 1,) int64 the strips' first rows; hog_c (C, D), col_c (C, B) the candidates, sorted by
+    strip with c_bounds. Fills conf_* (P,) float32 and best_* (P,) int64 (the first best, as
+    argmax) for patches in view whose strip has candidates; leaves the others untouched.
+
+    Compiled (numba): per strip, numpy made a (patches x candidates x bins) temporary for the
+    histogram intersections, the largest cost of a pair after the strip sampling."""
+    _eq1_kernel(hog_r, col_r, in_view, r_bounds, hog_c, col_c, c_bounds, conf_hog, conf_col, best_h, best_c)
+
+
+def _eq1_numba():
+    import numba
+
+    @numba.njit(cache=True, nogil=True, fastmath=True)     # the sums may be reordered (SIMD)
+    def kernel(hog_r, col_r, in_view, r_bounds, hog_c, col_c, c_bounds, conf_hog, conf_col, best_h, best_c):
+        D, B = hog_r.shape[1], col_r.shape[1]
+        for s in range(len(r_bounds) - 1):
+            c0, c1 = c_bounds[s], c_bounds[s + 1]
+            if c1 == c0:
+                continue
+            for r in range(r_bounds[s], r_bounds[s + 1]):
+                if not in_view[r]:
+                    continue
+                bh, ih, bc, ic = np.float32(-np.inf), -1, np.float32(-np.inf), -1
+                for c in range(c0, c1):
+                    dot = np.float32(0.0)
+                    for d in range(D):
+                        dot += hog_r[r, d] * hog_c[c, d]
+                    inter = np.float32(0.0)
+                    for b in range(B):
+                        inter += min(col_r[r, b], col_c[c, b])
+                    iou = inter / max(np.float32(2.0) - inter, np.float32(1e-6))
+                    if dot > bh:
+                        bh, ih = dot, c
+                    if iou > bc:
+                        bc, ic = iou, c
+                conf_hog[r], best_h[r] = bh, ih
+                conf_col[r], best_c[r] = bc, ic
+    return kernel
+
+
+
+_eq1_kernel = LazyKernel(_eq1_numba)
+
+
 def patch_sigma(params: Params) -> float:
     """Eq. 2: sigma = (max distance from a patch centre to a pixel of the patch) / 3, for the
     nominal L x L patch (strip height equals L at the reference distance)."""
@@ -211,27 +250,82 @@ def splat(st: RefStrips, table: PatchTable, size: tuple[int, int], sigma: float
     """Eq. 2 for every pixel: Gaussian-weighted average over the 9 covering patches.
 
     Returns hog_map, color_map (h, w) float32 (NaN where no covering patch had a candidate) and
-    evidence (h, w) float32.
+    evidence (h, w) float32. The covering patches are those of patches.iter_covering, found per
+    pixel in one compiled pass (numba): numpy needed nine full-image float64 passes with a dozen
+    temporaries each.
     """
     h, w = size
-    n = h * w
-    w_all, w_cand, s_hog, s_col = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    lut = np.full((st.n_fans, int(st.n_per_fan.max(initial=0)) + 1), -1, np.int64)
+    lut[st.fan, st.k] = np.arange(st.n_strips)
     usable = table.in_view
     cand = usable & table.has_candidate
-    conf_h = np.where(cand, table.conf_hog, 0.0)
-    conf_c = np.where(cand, table.conf_color, 0.0)
-    inv2s2 = 1.0 / (2 * sigma * sigma)
-    for pid, ok, d2 in iter_covering(st, size):
-        wgt = np.exp(-d2 * inv2s2) * ok
-        wu = wgt * usable[pid]
-        wc = wgt * cand[pid]
-        w_all += wu
-        w_cand += wc
-        s_hog += wc * conf_h[pid]
-        s_col += wc * conf_c[pid]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        hog_map = np.where(w_cand > 0, s_hog / w_cand, np.nan)
-        color_map = np.where(w_cand > 0, s_col / w_cand, np.nan)
-        evidence = np.where(w_all > 0, w_cand / w_all, 0.0)
-    return (hog_map.reshape(h, w).astype(np.float32), color_map.reshape(h, w).astype(np.float32),
-            evidence.reshape(h, w).astype(np.float32))
+    conf_h = np.where(cand, table.conf_hog, 0.0).astype(np.float64)
+    conf_c = np.where(cand, table.conf_color, 0.0).astype(np.float64)
+    win_base = np.concatenate([[0], np.cumsum(st.n_win)[:-1]]).astype(np.int64)
+    hog_map, color_map, evidence = _splat_kernel(
+        h, w, float(st.epipole[0]), float(st.epipole[1]), float(st.theta_lo), float(st.dtheta), bool(st.circle),
+        int(st.n_fans), st.n_per_fan.astype(np.int64), lut, st.theta_c.astype(np.float64),
+        st.t0.astype(np.float64), st.n_win.astype(np.int64), win_base, int(st.stride), int(st.L),
+        usable, cand, conf_h, conf_c, 1.0 / (2 * sigma * sigma))
+    return hog_map, color_map, evidence
+
+
+def _splat_numba():
+    import math
+
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def kernel(h, w, ex, ey, theta_lo, dtheta, circle, n_fans, n_per_fan, lut, theta_c, t0, n_win, win_base,
+               stride, L, usable, cand, conf_h, conf_c, inv2s2):
+        hog_map = np.empty((h, w), np.float32)
+        color_map = np.empty((h, w), np.float32)
+        evidence = np.empty((h, w), np.float32)
+        two_pi = 2.0 * np.pi
+        o = 0.0 if circle else 1.0
+        n_patches = len(usable)
+        for y in range(h):
+            for x in range(w):
+                dx, dy = x - ex, y - ey
+                r = math.hypot(dx, dy)
+                theta = math.atan2(dy, dx)
+                rel = (theta - theta_lo) % two_pi
+                w_all = w_cand = s_hog = s_col = 0.0
+                for f in range(n_fans):
+                    k = int(math.floor(rel / dtheta - f / n_fans + o))
+                    if circle:
+                        k = k % n_per_fan[f]
+                    if k < 0 or k >= n_per_fan[f]:
+                        continue
+                    s = lut[f, k]
+                    if s < 0:
+                        continue
+                    dth = theta - theta_c[s]
+                    t = r * math.cos(dth)
+                    u2 = (r * math.sin(dth)) ** 2
+                    if t < 0:
+                        continue
+                    j_hi = int(math.floor((t - t0[s]) / stride))
+                    for m in range(L // stride):
+                        j = j_hi - m
+                        if j < 0 or j >= n_win[s]:
+                            continue
+                        pid = min(win_base[s] + j, n_patches - 1)
+                        tc = t0[s] + j * stride + L / 2
+                        wgt = math.exp(-((t - tc) ** 2 + u2) * inv2s2)
+                        if usable[pid]:
+                            w_all += wgt
+                        if cand[pid]:
+                            w_cand += wgt
+                            s_hog += wgt * conf_h[pid]
+                            s_col += wgt * conf_c[pid]
+                if w_cand > 0:
+                    hog_map[y, x], color_map[y, x] = s_hog / w_cand, s_col / w_cand
+                else:
+                    hog_map[y, x], color_map[y, x] = np.nan, np.nan
+                evidence[y, x] = w_cand / w_all if w_all > 0 else 0.0
+        return hog_map, color_map, evidence
+    return kernel
+
+
+_splat_kernel = LazyKernel(_splat_numba)

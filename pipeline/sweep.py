@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .jit import LazyKernel
 from .params import SweepParams
 
 UNSEEN = 255
@@ -358,15 +359,6 @@ def _ssim_numba():
     return kernel
 
 
-class _LazyKernel:
-    def __init__(self, make):
-        self._make, self._fn = make, None
 
-    def __call__(self, *args):
-        if self._fn is None:
-            self._fn = self._make()
-        return self._fn(*args)
-
-
-_fuse_kernel = _LazyKernel(_fuse_numba)
-_ssim_kernel = _LazyKernel(_ssim_numba)
+_fuse_kernel = LazyKernel(_fuse_numba)
+_ssim_kernel = LazyKernel(_ssim_numba)
