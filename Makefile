@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY      = $(VENV)/bin/python
 SET    ?= sample_sets/tabletop_ball
 
-.PHONY: setup browser demo test bench samples clean
+.PHONY: setup browser demo test bench stress samples clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +31,11 @@ test: setup browser
 
 bench: setup
 	$(VENV)/bin/crowdcam bench
+
+# ten tabs on one inspector for a minute, 404 probes, killed workers, Ctrl-C, a corrupted cache,
+# a full disk: one table (bench/stress.py; a few minutes; exit 1 if a check fails)
+stress: setup browser
+	$(PY) -m bench.stress
 
 samples: setup
 	$(VENV)/bin/crowdcam make-samples

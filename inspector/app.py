@@ -37,6 +37,7 @@ from pipeline.output import to_original
 from pipeline.params import PRESETS, get_preset
 
 from . import compose, render
+from .memory import limit_malloc_arenas
 from .model import (Score, SetBest, SetModel, Settings, TermCache, gt_at_working, score, set_best_threshold,
                     usable_supports)
 
@@ -151,6 +152,7 @@ class Inspector:
     def __init__(self, photo_set: PhotoSet, gts: dict[str, np.ndarray], cache: PairCache, out_dir: Path,
                  host: str = "127.0.0.1", port: int = 8080, preset: str = "default", max_side: int = 640,
                  workers: int | None = None, hold: threading.Event | None = None):
+        limit_malloc_arenas()              # memory stays flat as tabs come and go (inspector/memory.py)
         self.photo_set = photo_set
         self.hold = hold                                   # see SetModel.hold (tests only)
         self.stems = [p.stem for p in photo_set.photos]
