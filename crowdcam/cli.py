@@ -139,7 +139,7 @@ def cmd_detect(args) -> int:
         rep.info(_table_row(photo_set.name, score))
     live = None
     if args.rrd or args.rerun_web:
-        extra["rerun_s"], live = _log_rerun(args, res, photo_set, threshold, gts, extra.get("evaluation"), rep)
+        extra["rerun_s"], live = _log_rerun(args, res, photo_set, threshold, gts, rep)
     for p, d in zip(photo_set.photos, res.dynamic):
         if d is not None and not (d > threshold).any():
             rep.warn(f"{p.path}: no pixel above the threshold {threshold:g} (P_dynamic {float(d.min()):.2f}-"
@@ -191,7 +191,7 @@ def _parse_pixels(specs: list[str] | None):
         raise CliError(f"--rr-pixel takes X,Y in working-resolution pixels (got {specs})") from None
 
 
-def _log_rerun(args, res, photo_set, threshold, gts, evaluation, rep):
+def _log_rerun(args, res, photo_set, threshold, gts, rep):
     """Record the run (--rrd FILE, written atomically) and/or stream it live (--rerun-web).
 
     Returns (seconds spent, live) where live is (viewer, recording stream) to keep serving, or None.
@@ -210,7 +210,6 @@ def _log_rerun(args, res, photo_set, threshold, gts, evaluation, rep):
         if args.rr_ref not in stems:
             raise CliError(f"--rr-ref {args.rr_ref}: no photo with that stem in the set")
         focus = stems.index(args.rr_ref)
-    scores = (evaluation or {}).get("per_image_at_set", {})
     rec = rr.RecordingStream("crowdcam", recording_id=f"{photo_set.name}-{int(time.time())}")
     tmp, web, sinks = None, None, []
     try:
@@ -228,7 +227,7 @@ def _log_rerun(args, res, photo_set, threshold, gts, evaluation, rep):
             web = RerunWeb()
             sinks.append(rr.GrpcSink(web.grpc_uri))
         rec.set_sinks(*sinks)                   # one stream, written to the file and streamed live
-        desc = log_run(res, rec, focus=focus, pixels=_parse_pixels(args.rr_pixel), gts=gts, scores=scores,
+        desc = log_run(res, rec, focus=focus, pixels=_parse_pixels(args.rr_pixel), gts=gts,
                        threshold=threshold)
         rec.send_blueprint(make_blueprint(desc))
         rec.flush()

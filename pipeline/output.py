@@ -31,16 +31,23 @@ def to_original(prob: np.ndarray, photo: Photo) -> np.ndarray:
     return np.clip(cv2.resize(prob, (W, H), interpolation=cv2.INTER_LINEAR), 0.0, 1.0).astype(np.float32)
 
 
+MASK_OUTLINE_RGB = (255, 40, 40)       # the mask's outline, as the inspector draws it
+
+
 def heat_overlay(rgb: np.ndarray, prob: np.ndarray, mask: np.ndarray | None = None, alpha: float = 0.5) -> np.ndarray:
     """Blend a blue (static) to red (dynamic) heat map over the photo; (H, W, 3) uint8 RGB.
 
-    mask: optional (H, W) bool; its outline is drawn in white.
+    The colour map is OpenCV's 'turbo', the inspector's (one colour language for the outputs,
+    the inspector and the Rerun recording). mask: optional (H, W) bool; its outline is drawn in
+    the inspector's red, on a dark border so that it reads on the red of the map.
     """
-    heat = cv2.applyColorMap(np.clip(prob * 255 + 0.5, 0, 255).astype(np.uint8), cv2.COLORMAP_JET)[..., ::-1]
+    heat = cv2.applyColorMap(np.clip(prob * 255 + 0.5, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
     out = (rgb.astype(np.float32) * (1 - alpha) + heat.astype(np.float32) * alpha).astype(np.uint8)
     if mask is not None and mask.any():
         contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        cv2.drawContours(out, contours, -1, (255, 255, 255), max(1, round(max(rgb.shape[:2]) / 400)))
+        t = max(1, round(max(rgb.shape[:2]) / 400))
+        cv2.drawContours(out, contours, -1, (0, 0, 0), t + 2, cv2.LINE_AA)
+        cv2.drawContours(out, contours, -1, MASK_OUTLINE_RGB, t, cv2.LINE_AA)
     return out
 
 

@@ -22,7 +22,9 @@ Entity tree (stems are the photos' file stems):
     /dynamic/<ref>/prob                   P_dynamic, Eq. 3 (16-bit heat map)
     /dynamic/<ref>/mask                   mask at the threshold
     /dynamic/<ref>/overlay                heat map blended over the photo, mask outlined
-    /dynamic/<ref>/gt                     ground truth (when the set has it), /dynamic/<ref>/jaccard
+    /dynamic/<ref>/gt                     ground truth (when the set has it; classes), gt_outline (its
+                                          outline, green as in the inspector), jaccard (at the threshold
+                                          and the best for the photo)
     /dynamic/<ref>/sweep                  P_dynamic after 1, 2, ... k supports (timeline "supports";
                                           for the first reference only when the preset sweeps depths:
                                           each step is a fusion of its own)
@@ -64,10 +66,18 @@ def _closed(quads: np.ndarray) -> np.ndarray:
 
 
 def _heat(values: np.ndarray) -> np.ndarray:
-    """(N,) in [0, 1] -> (N, 3) uint8 colours, blue (low) to red (high)."""
+    """(N,) in [0, 1] -> (N, 3) uint8 colours, blue (low) to red (high): OpenCV's 'turbo', the
+    inspector's colour map."""
     import cv2
     v = np.clip(np.asarray(values) * 255, 0, 255).astype(np.uint8)[:, None]
-    return cv2.applyColorMap(v, cv2.COLORMAP_JET)[:, 0, ::-1].copy()
+    return cv2.applyColorMap(v, cv2.COLORMAP_TURBO)[:, 0, ::-1].copy()
+
+
+# The inspector's colours (inspector/render.py; the pipeline does not import the UI)
+HOG_RGB = (60, 220, 60)          # the best HOG (shape) candidate
+COLOR_RGB = (255, 150, 20)       # the best colour candidate
+REF_PATCH_RGB = (255, 255, 255)  # the reference patch
+GT_RGB = (40, 255, 80)           # the ground truth's outline
 
 
 def choose_focus(res) -> int:
@@ -100,8 +110,11 @@ def sample_pixels(res, i: int, n: int = 8) -> np.ndarray:
 
 
 def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.ndarray | None = None,
-            gts: dict | None = None, scores: dict | None = None, threshold: float = 0.5) -> dict:
-    """Log everything of a finished run. Returns the blueprint description (also logged)."""
+            gts: dict | None = None, threshold: float = 0.5) -> dict:
+    """Log everything of a finished run. Returns the blueprint description (also logged).
+
+    gts: ground truth per photo stem ((H, W) uint8 at the original size, 255 moving, 128 don't
+    care); each photo that has it gets its outline and its Jaccard at `threshold` (the mask's)."""
     photos = res.photo_set.photos
     stems = [part(p.stem) for p in photos]
     focus = choose_focus(res) if focus is None else focus
@@ -115,7 +128,7 @@ def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.n
             static=True)
     for i, j in sorted(res.pairs):
         log_pair(res, rec, stems, i, j)
-    log_dynamic(res, rec, stems, gts or {}, scores or {}, threshold, focus)
+    scores = log_dynamic(res, rec, stems, gts or {}, threshold, focus)
     log_world(res, rec, stems)
     for i in range(len(photos)):
         if res.dynamic[i] is None:
@@ -126,7 +139,8 @@ def log_run(res, rec: rr.RecordingStream, focus: int | None = None, pixels: np.n
             log_candidates(res, rec, stems, i, j, pts)
     log_metrics(res, rec)
     desc = {"focus": stems[focus], "supports": [stems[j] for j in shown_supports(res, focus)],
-            "has_gt": bool(gts), "has_cameras": bool(res.cameras is not None and res.cameras.n_registered)}
+            "has_gt": bool(gts), "has_cameras": bool(res.cameras is not None and res.cameras.n_registered),
+            "threshold": threshold, "jaccard": scores.get(focus)}
     rec.log(BLUEPRINT_ENTITY, rr.TextDocument(json.dumps(desc)), static=True)
     _at_start(rec)
     rec.log("/log", rr.TextLog(f"logged {len(photos)} photos, {len(res.pair_results)} pairs; "
@@ -206,7 +220,15 @@ def log_world(res, rec, stems) -> None:
         return
     rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     if len(cams.points):
-        rec.log("/world/points", rr.Points3D(cams.points, colors=cams.point_rgb, radii=0.02), static=True)
+        # radii in screen points: the reconstruction's unit is arbitrary, so world radii were
+        # invisible on one set and blobs on another
+        rec.log("/world/points", rr.Points3D(cams.points, colors=cams.point_rgb, radii=rr.Radius.ui_points(2.0)),
+                static=True)
+    reg = np.nonzero(cams.registered)[0]
+    centre = np.median(cams.points, axis=0) if len(cams.points) else cams.C[reg].mean(axis=0)
+    # the photos at a tenth of the cameras' distance to the scene (a fixed 0.5 was lost in a
+    # large reconstruction and hid a small one)
+    plane = 0.1 * float(np.median(np.linalg.norm(cams.C[reg] - centre, axis=1))) or 0.5
     for k in np.nonzero(cams.registered)[0]:
         p = res.photo_set.photos[k]
         base = f"/world/cameras/{stems[k]}"
@@ -215,11 +237,17 @@ def log_world(res, rec, stems) -> None:
         K = cams.K[k].copy()
         K[:2, 2] += 0.5
         rec.log(f"{base}/image", rr.Pinhole(image_from_camera=K, resolution=[p.size[1], p.size[0]],
-                                            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.5), static=True)
+                                            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=plane),
+                static=True)
         rec.log(f"{base}/image", rr.Image(p.rgb).compress(jpeg_quality=70), static=True)
 
 
-def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float, focus: int | None = None) -> None:
+def log_dynamic(res, rec, stems, gts: dict, threshold: float, focus: int | None = None) -> dict[int, str]:
+    """P_dynamic of every photo with its mask, overlay, ground truth and Jaccard. Returns the
+    Jaccard line per photo index that has ground truth."""
+    from .evaluate import jaccard, jaccard_curve, THRESHOLDS
+    from .output import to_original
+    scores = {}
     rec.log("/dynamic", rr.AnnotationContext([(0, "static", (0, 0, 0, 0)), (1, "dynamic", (255, 255, 255, 140)),
                                               (2, "don't care", (80, 80, 255, 140))]), static=True)
     for i, (p, s) in enumerate(zip(res.photo_set.photos, stems)):
@@ -239,9 +267,19 @@ def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float, focu
             g = cv2.resize(g, (p.size[1], p.size[0]), interpolation=cv2.INTER_NEAREST)
             cls = np.where(g == 255, 1, np.where(g == 128, 2, 0)).astype(np.uint8)
             rec.log(f"{base}/gt", rr.SegmentationImage(cls), static=True)
-        if p.stem in scores:
-            rec.log(f"{base}/jaccard", rr.TextDocument(f"Jaccard at {threshold:.2f}: {scores[p.stem]:.3f}"),
-                    static=True)
+            contours, _ = cv2.findContours((g == 255).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            # closed strips; +0.5: our pixel centres are at integers, Rerun's at half-integers
+            strips = [np.vstack([c[:, 0], c[:1, 0]]).astype(np.float32) + 0.5 for c in contours if len(c) > 1]
+            if strips:
+                rec.log(f"{base}/gt_outline", rr.LineStrips2D(strips, colors=[GT_RGB], radii=rr.Radius.ui_points(1.5)),
+                        static=True)
+            # as `crowdcam eval` scores it: at the original size
+            prob = to_original(dyn, p)
+            curve = jaccard_curve(prob, gts[p.stem])
+            k = int(np.argmax(curve))
+            scores[i] = (f"Jaccard {jaccard(prob > threshold, gts[p.stem]):.2f} at the threshold {threshold:.2f} "
+                         f"(best for this photo {curve[k]:.2f} at {THRESHOLDS[k]:.2f})")
+            rec.log(f"{base}/jaccard", rr.TextDocument(scores[i]), static=True)
         f = res.fused(i, res.supports[i]) if res.params.sweep.enabled else None
         if f is not None:
             pair = next((res.pair_results[(i, j)].sweep for j in res.supports[i] if res.is_swept(i, j)
@@ -265,6 +303,7 @@ def log_dynamic(res, rec, stems, gts: dict, scores: dict, threshold: float, focu
             rec.log(f"{base}/sweep", rr.DepthImage(np.round(sweep * 255).astype(np.uint8), meter=255.0,
                                                    colormap="turbo", depth_range=(0.0, 255.0)))
         rec.reset_time()
+    return scores
 
 
 def log_candidates(res, rec, stems, i: int, j: int, pixels: np.ndarray) -> None:
@@ -287,19 +326,20 @@ def log_candidates(res, rec, stems, i: int, j: int, pixels: np.ndarray) -> None:
     for k, ev in enumerate(evidence):
         rec.set_time("patch", sequence=k)
         rec.set_time("supports", sequence=0)
-        rec.log(f"{base}/ref/patches", rr.LineStrips2D(_closed(ev.ref_quad[None]), radii=1.5, colors=[0, 255, 255],
+        rec.log(f"{base}/ref/patches", rr.LineStrips2D(_closed(ev.ref_quad[None]), radii=1.5, colors=[REF_PATCH_RGB],
                                                        labels=[f"patch {ev.patch}"]))
         if len(ev.sim_hog) == 0:
             rec.log(f"{base}/sup/candidates", rr.Clear(recursive=False))
             rec.log(f"{base}/sup/best", rr.Clear(recursive=False))
             continue
+        # 1 - similarity: blue = alike (a match), red = unlike, as 1 - P(x|I_s) in the maps
         rec.log(f"{base}/sup/candidates", rr.LineStrips2D(_closed(ev.cand_quads), radii=0.4,
-                                                          colors=_heat(ev.sim_hog)))
+                                                          colors=_heat(1.0 - np.nan_to_num(ev.sim_hog))))
         best = [ev.best_hog, ev.best_color]
         labels = [f"best HOG {ev.sim_hog[ev.best_hog]:.2f} (colour {ev.sim_color[ev.best_hog]:.2f})",
                   f"best colour {ev.sim_color[ev.best_color]:.2f} (HOG {ev.sim_hog[ev.best_color]:.2f})"]
         rec.log(f"{base}/sup/best", rr.LineStrips2D(_closed(ev.cand_quads[best]), radii=2.0,
-                                                    colors=[[255, 255, 255], [255, 0, 255]], labels=labels))
+                                                    colors=[HOG_RGB, COLOR_RGB], labels=labels))
     rec.reset_time()
 
 
@@ -319,7 +359,8 @@ def log_metrics(res, rec) -> None:
 
 def make_blueprint(desc: dict) -> rrb.Blueprint:
     """First screen: the reference with its overlays, a support with its corresponding lines,
-    the aggregate over the photo, per-support maps, the sweep, and the log."""
+    the aggregate over the photo (with the ground truth's outline and the Jaccard in its title),
+    per-support maps, the sweep, the cameras in 3-D, and the log."""
     f = desc["focus"]
     sups = desc["supports"]
     s0 = sups[0] if sups else None
@@ -328,18 +369,29 @@ def make_blueprint(desc: dict) -> rrb.Blueprint:
     if s0:
         top.append(rrb.Spatial2DView(name=f"support {s0}", origin="/",
                                      contents=[f"/images/{s0}", f"/pairs/{f}/{s0}/sup/**"]))
-    top.append(rrb.Spatial2DView(name=f"P_dynamic {f}", origin=f"/dynamic/{f}",
-                                 contents=[f"/dynamic/{f}/overlay"]))
-    maps = [rrb.Spatial2DView(name=f"1 - P(x|{s})", origin=f"/pairs/{f}/{s}",
+    title = f"P_dynamic {f} (blue static, red moving" + ("; green: ground truth)" if desc.get("has_gt") else ")")
+    if desc.get("jaccard"):
+        title += f" · {desc['jaccard'].split(' (')[0]}"
+    top.append(rrb.Spatial2DView(name=title, origin=f"/dynamic/{f}",
+                                 contents=[f"/dynamic/{f}/overlay", f"/dynamic/{f}/gt_outline"]))
+    # named by the support first: a narrow view keeps the start of its title
+    maps = [rrb.Spatial2DView(name=f"{s}: 1 − P(x|I_s)", origin=f"/pairs/{f}/{s}",
                               contents=[f"/pairs/{f}/{s}/mismatch_overlay"]) for s in sups[:6]]
     bottom = [rrb.Grid(*maps, grid_columns=3, name="per-support maps")] if maps else []
+    shares = [3.0] if maps else []
     bottom.append(rrb.Spatial2DView(name="support sweep (Fig. 5)", origin=f"/dynamic/{f}/sweep"))
+    shares.append(2.0)
     if desc.get("has_cameras"):
         bottom.append(rrb.Spatial3DView(name="cameras and points", origin="/world"))
-    bottom.append(rrb.Vertical(rrb.TextLogView(origin="/log", name="log"),
-                               rrb.TextDocumentView(origin=f"/pairs/{f}/{s0}/info" if s0 else "/params",
-                                                    name="pair")))
-    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom), row_shares=[3, 2]),
+        shares.append(2.0)
+    text = [rrb.TextLogView(origin="/log", name="log"),
+            rrb.TextDocumentView(origin=f"/pairs/{f}/{s0}/info" if s0 else "/params", name="pair")]
+    if desc.get("jaccard"):
+        text.insert(0, rrb.TextDocumentView(origin=f"/dynamic/{f}/jaccard", name="Jaccard"))
+    bottom.append(rrb.Vertical(*text))
+    shares.append(2.0)
+    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom, column_shares=shares),
+                                      row_shares=[3, 2]),
                          rrb.TimePanel(timeline="patch", play_state="paused"), collapse_panels=True)
 
 

@@ -134,3 +134,32 @@ def test_cameras_in_3d(recording):
     assert "/world/points" in paths
     for k in np.nonzero(res.cameras.registered)[0]:
         assert f"/world/cameras/{part(res.photo_set.photos[k].stem)}/image" in paths
+
+
+def test_ground_truth_and_jaccard_on_the_first_screen(recording, tmp_path):
+    """With ground truth: its outline (green, as in the inspector) and the Jaccard at the mask's
+    threshold, scored at the original size as `crowdcam eval` does, both in the first view."""
+    from pipeline.evaluate import jaccard
+    from pipeline.loading import load_gts
+    from pipeline.output import to_original
+    from pipeline.rerun_log import GT_RGB, make_blueprint
+    res = recording[0]
+    gts = load_gts(res.photo_set)
+    path = tmp_path / "gt.rrd"
+    rec = rr.RecordingStream("crowdcam", recording_id="test-gt")
+    rec.save(str(path))
+    desc = log_run(res, rec, gts=gts, threshold=0.4)
+    rec.disconnect()
+    store = RrdReader(str(path)).store()
+    i = choose_focus(res)
+    photo = res.photo_set.photos[i]
+    want = jaccard(to_original(res.dynamic[i], photo) > 0.4, gts[photo.stem])
+    assert desc["jaccard"].startswith(f"Jaccard {want:.2f} at the threshold 0.40")
+    (ch,) = _chunks(store, f"/dynamic/{desc['focus']}/gt_outline")
+    rb = ch.to_record_batch()
+    assert len(rb.column("LineStrips2D:strips")[0].as_py()) >= 1
+    colour = rb.column("LineStrips2D:colors")[0].as_py()[0]
+    assert colour == (GT_RGB[0] << 24) | (GT_RGB[1] << 16) | (GT_RGB[2] << 8) | 255
+    (ch,) = _chunks(store, f"/dynamic/{desc['focus']}/jaccard")
+    assert ch.to_record_batch().column("TextDocument:text")[0].as_py()[0] == desc["jaccard"]
+    make_blueprint(desc)                                  # the title carries it; it builds
