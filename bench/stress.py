@@ -165,11 +165,11 @@ def _page_jaccards(page, pattern: re.Pattern) -> list[tuple[str, str]]:
     return pattern.findall(page.evaluate("() => document.body.textContent"))
 
 
-def ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=print) -> dict:
+def ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=print, verbose: bool = False) -> dict:
     """_ten_tabs, then what the closed tabs left: their sessions and threads, and the RSS. (Out
     here, where no frame of the load holds a tab: Playwright's sync API takes snapshots of the
     caller's locals, which would keep the last ones alive.)"""
-    out = _ten_tabs(app, n_tabs, seconds, seed, log)
+    out = _ten_tabs(app, n_tabs, seconds, seed, log, verbose=verbose)
     gone = out.pop("_gone")
     gc.collect()
     threads = [t.name for t in threading.enumerate() if re.match(r"tab\d+-(fast|slow)$", t.name)]
@@ -178,7 +178,8 @@ def ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=pr
     return out
 
 
-def _ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=print) -> dict:
+def _ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=print, moves: int = 2,
+              verbose: bool = False) -> dict:
     """n_tabs tabs at once, each with its own thresholds and references, for `seconds`; see the
     module docstring. The inspector's run must be done."""
     from playwright.sync_api import sync_playwright
@@ -227,9 +228,11 @@ def _ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=p
         t_end = time.time() + seconds
         while time.time() < t_end:
             rounds += 1
-            thresholds = rng.choice(grid, size=n_tabs, replace=False)     # no two tabs alike
+            # per tab a drag: `moves` values typed in a row, the last one (no two tabs alike) counts
+            last = rng.choice(grid, size=n_tabs, replace=False)
             want = []
-            for (_, page, session), t in zip(tabs, thresholds):
+            t_round = time.time()
+            for (_, page, session), t in zip(tabs, last):
                 ref = session.settings.ref
                 if rng.random() < 0.3:                                  # and now and then another photo
                     ref = int(rng.choice([r for r in refs if r != ref]))
@@ -237,13 +240,17 @@ def _ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=p
                     page.get_by_role("option", name=stems[ref], exact=True).click()
                 box = page.locator(f'[id="{session.sl_thr._impl.uuid}"]').locator("xpath=../..") \
                     .locator("input.mantine-NumberInput-input")
-                box.fill(f"{t:g}")
-                box.press("Enter")
-                want.append((ref, float(t)))
-            for (_, page, session), (ref, t) in zip(tabs, want):
-                _wait(lambda: session.settings.ref == ref and abs(session.settings.threshold - t) < 1e-9, 120,
-                      "the tab's new state on the server")
-                _settled(session)
+                n = len(session.events)
+                for v in list(rng.choice(grid[grid != t], size=moves - 1)) + [t]:    # the last one changes it
+                    box.fill(f"{v:g}")
+                    box.press("Enter")
+                want.append((ref, float(t), n))
+            t_issued = time.time()
+            for (_, page, session), (ref, t, n) in zip(tabs, want):
+                # the callback records its event after asking for the redraws: then wait for the main view
+                _wait(lambda: any(e[0] == "settings" and e[1].ref == ref and abs(e[1].threshold - t) < 1e-9
+                                  for e in session.events[n:]), 120, "the tab's new state on the server")
+                _wait(session.fast.idle, 120, "the tab's main view")   # (its slow views may go on drawing)
                 own = (stems[ref], f"{t:.3f}")
                 checks += 1
                 server = jaccard.findall(session.md_eval.content)
@@ -255,6 +262,8 @@ def _ten_tabs(app, n_tabs: int = 10, seconds: float = 60.0, seed: int = 0, log=p
                 if server != [own] or shown != [own]:
                     crossed += 1
                     crossings.append(f"tab {session.client.client_id}: wants {own}, server {server}, page {shown}")
+            if verbose:
+                log(f"  round {rounds}: issued in {t_issued - t_round:.1f} s, checked in {time.time() - t_issued:.1f} s")
         stop.set()
         sampler.join()
         gc.collect()
@@ -492,6 +501,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="the tabs' cache, kept between runs (default crowdcam-out/stress/cache)")
     ap.add_argument("--skip-tabs", action="store_true")
     ap.add_argument("--skip-faults", action="store_true")
+    ap.add_argument("--verbose", action="store_true", help="say how long each round of the tabs took")
     args = ap.parse_args(argv)
     os.environ.setdefault("CROWDCAM_CACHE", str(Path(args.cache_dir)))     # nothing in the user's cache
 
@@ -521,7 +531,7 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(("the page itself -> 200", ", ".join(f"{k} {v}" for k, v in pr["own_page"].items()),
                          all(v == 200 for v in pr["own_page"].values())))
             if not args.skip_tabs:
-                r = ten_tabs(app, args.tabs, args.seconds, log=log)
+                r = ten_tabs(app, args.tabs, args.seconds, log=log, verbose=args.verbose)
                 rows += [
                     (f"{r['tabs']} tabs, {r['seconds']:.0f} s: rounds / state checks", f"{r['rounds']} / {r['checks']}",
                      r["checks"] > 0),
@@ -574,12 +584,12 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     load1 = os.getloadavg()
-    w = max(len(r[0]) for r in rows)
+    w, fw = max(len(r[0]) for r in rows), max(len(r[1]) for r in rows)
     print(f"\ncrowdcam stress: {Path(args.set).name} at {args.max_side} px, {time.time() - t_all:.0f} s in all; "
           f"{os.cpu_count()} cores, load average {load0[0]:.1f} at the start, {load1[0]:.1f} at the end")
-    print(f"{'check':<{w}}  {'figure':<40}  ok")
+    print(f"{'check':<{w}}  {'figure':<{fw}}  ok")
     for name, fig, ok in rows:
-        print(f"{name:<{w}}  {fig:<40}  {'yes' if ok else 'NO'}")
+        print(f"{name:<{w}}  {fig:<{fw}}  {'yes' if ok else 'NO'}")
     return 0 if all(ok for _, _, ok in rows) else 1
 
 
