@@ -367,8 +367,11 @@ class _Runner:
                     futures[self.pool.submit(fn, *a)] = k
                 for fut in as_completed(futures):
                     result = fut.result()
-                    del pending[futures[fut]]
+                    # let go of the finished future at once: it holds its result (a pair's bytes,
+                    # ~8 MB), and a 100-photo set has 800 of them (the main process grew past 3 GB)
+                    del pending[futures.pop(fut)]
                     on_done(result)
+                    del result
             except BrokenProcessPool:
                 self.close(kill=True)
                 for k in pending:
@@ -435,7 +438,9 @@ class _DaskRunner:
                 except KilledWorker:
                     raise WorkerDied(f"Dask workers died repeatedly while computing {label(futures[fut])}; "
                                      "the finished pairs are cached, a re-run resumes") from None
+                del futures[fut]          # the cluster forgets the result once the client lets go of it
                 on_done(result)
+                del result
         except BaseException:
             for fut in futures:
                 fut.cancel()
