@@ -38,6 +38,7 @@ from pipeline.params import PRESETS, get_preset
 
 from . import compose, render
 from .memory import limit_malloc_arenas
+from .tour import Tour
 from .model import (Score, SetBest, SetModel, Settings, TermCache, gt_at_working, score, set_best_threshold,
                     usable_supports)
 
@@ -290,9 +291,11 @@ class Session:
         self._pub = threading.RLock()                       # publishing to the page vs. clearing it
         self._epoch = 0                                     # reference and preset
         self._versions = {"sweep": 0, "pixel": 0}         # what the slow views were last asked to show
+        self.tour: Tour | None = None                       # the guided tour, prepared links (tour.py)
         self._build()
         self.fast = Redrawer(f"tab{client.client_id}-fast", self._draw_fast)
         self.slow = Redrawer(f"tab{client.client_id}-slow", self._draw_slow)
+        self.tour = Tour(self)
 
     # ------------------------------------------------------------------ GUI
     def _build(self) -> None:
@@ -444,6 +447,8 @@ class Session:
     # ------------------------------------------------------------------ state changes (callbacks)
     def _record(self, what: str, value: object) -> None:
         self.events.append((what, value))
+        if self.tour is not None:
+            self.tour.on_event(what, value)
 
     def _current_settings(self) -> Settings:
         s = self.settings
@@ -598,6 +603,8 @@ class Session:
         self.sl_thr.value = float(t)               # fires _on_control
 
     def _on_click(self, ev) -> None:
+        if self.tour is not None and self.tour.on_click(ev):      # a tour step's picture
+            return
         if self.large is not None:                  # a support is shown: its pixels are not the reference's
             return
         o, d = np.asarray(ev.ray_origin, np.float64), np.asarray(ev.ray_direction, np.float64)
@@ -723,11 +730,15 @@ class Session:
             if large is not None and report is not None and report.ref == ref and \
                     large in [e.sup for e in report.evidence]:
                 img = compose.large_view(snap, report, large, self.app.stems, self._large_width())
+            if self.tour is not None:       # a tour step draws its own picture (the plain one when off)
+                img = self.tour.picture(snap, img, dyn)
             with self._pub:                 # the picture first, then its key and numbers
                 if epoch != self._epoch:
                     return
                 if self._show_scene(img):
                     self._fit_camera()
+                if self.tour is not None:
+                    self.tour.shown()
                 self.main_ms = (self.main_ms + [1000 * (time.perf_counter() - t0)])[-50:]
                 self.dyn = dyn
             n_sup = len(usable_supports(snap, s)) if snap is not None else 0

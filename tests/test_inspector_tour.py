@@ -1,0 +1,237 @@
+"""The guided tour, presenter mode and prepared links (inspector/tour.py) in a real browser.
+
+Debian's Chromium driven by Playwright; the inspector runs in this process, so the test reads
+what the server did (the session's recorded events, its tour's state and step pictures). It
+walks the whole tour with the arrow keys when nothing has the focus (the photo view never
+turns), checks that a focused control keeps its arrow keys, reaches a step directly and clicks
+a point on a step's picture; then opens a prepared link and finds its reference, supports,
+threshold, point and step, and gets the same link back from "Link to this view".
+
+No test sleeps to wait for a state: they wait for recorded events and the redrawers' idle
+events.
+"""
+
+import re
+import threading
+import time
+from pathlib import Path
+from urllib.parse import parse_qs, urlparse
+
+import numpy as np
+import pytest
+
+from conftest import SAMPLE_SETS
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def wait_for(pred, timeout=60.0, what="condition"):
+    """Poll a condition the server sets (an explicit state, not a delay)."""
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        if pred():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def settled(session):
+    for _ in range(1000):
+        assert session.slow.wait_idle(120) and session.fast.wait_idle(60)
+        if session.slow.idle() and session.fast.idle():
+            return
+    raise AssertionError("the tab never settled")
+
+
+def wait_event(session, name, pred=lambda v: True, after=0, timeout=60.0):
+    def found():
+        return any(e[0] == name and pred(e[1]) for e in session.events[after:])
+    wait_for(found, timeout, f"event {name!r}")
+
+
+# ----------------------------------------------------------------------------- the link format
+def test_prepared_state_round_trip():
+    from inspector.state import PreparedState, from_query, to_query
+    st = PreparedState(set="tabletop_ball", preset="default", ref="cam03", off=("cam01", "cam05"),
+                       threshold=0.425, pixel=(212.0, 148.0), step=4, support="cam02", presenter=True)
+    q = to_query(st)
+    assert q == ("set=tabletop_ball&preset=default&ref=cam03&off=cam01,cam05&threshold=0.425&pixel=212,148"
+                 "&step=4&support=cam02&presenter=1")
+    assert from_query(q) == st
+    assert from_query("http://127.0.0.1:8080/?" + q + "#x") == st          # a whole link
+    assert from_query("?off=") == PreparedState(off=())                      # all supports on
+    for bad in ("threshold=2", "step=9", "pixel=3", "colour=red", "presenter=yes", "ref="):
+        with pytest.raises(ValueError):
+            from_query(bad)
+
+
+# ----------------------------------------------------------------------------- the browser
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    from inspector.app import Inspector
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_gts, load_set
+    tmp = tmp_path_factory.mktemp("inspector-tour")
+    ps = load_set(SAMPLE_SETS / "tabletop_ball", 256)
+    a = Inspector(ps, load_gts(ps), PairCache(tmp / "cache"), tmp / "out", port=0, max_side=256, workers=1)
+    yield a
+    a.close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+    assert Path(CHROMIUM).exists(), "Debian's chromium is needed (make test installs it)"
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        yield b
+        b.close()
+
+
+def open_tab(browser, app, url=None, viewport=(1366, 768)):
+    page = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}).new_page()
+    before = set(app.sessions)
+    page.goto(url or app.url)
+    page.get_by_text("Threshold", exact=True).first.wait_for(timeout=60_000)
+    wait_for(lambda: set(app.sessions) - before, what="the tab's session")
+    tab = app.sessions[(set(app.sessions) - before).pop()]
+    page.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=900_000)
+    close = page.locator(".mantine-Notification-closeButton")     # the "software WebGL" toast over the canvas
+    if close.count():
+        close.first.click()
+    settled(tab)
+    return page, tab
+
+
+def nothing_focused(page):
+    page.evaluate("document.activeElement && document.activeElement.blur && document.activeElement.blur()")
+    assert page.evaluate("document.activeElement === document.body || document.activeElement === null")
+
+
+def camera(tab):
+    c = tab.client.camera
+    return np.r_[np.asarray(c.position, float), np.asarray(c.look_at, float)]
+
+
+def test_tour_walk_keys_and_click(browser, app):
+    from inspector.tour_views import STEPS
+    page, tab = open_tab(browser, app)
+    tour = tab.tour
+    assert tour.step == 0
+    page.get_by_role("button", name="Take the guided tour").click()
+    wait_event(tab, "tour shown", lambda v: v == 1)
+    settled(tab)
+    cam0, n0 = camera(tab), len(tab.events)
+    pictures = {}
+    for k in range(1, 8):
+        if k > 1:
+            n = len(tab.events)
+            nothing_focused(page)
+            page.keyboard.press("ArrowRight")
+            wait_event(tab, "tour shown", lambda v: v == k, after=n)
+            settled(tab)
+        st = STEPS[k - 1]
+        page.get_by_text(f"Step {k} of 7: {st.title}").wait_for()
+        page.get_by_text(st.text.split("(")[0].replace("**", "").strip()[:30], exact=False).first.wait_for()
+        assert "§" in st.text
+        assert tour.step == k and tour.layout is not None
+        rgb = tour.layout.rgb
+        assert rgb.shape[0] > 200 and rgb.shape[1] > 400 and rgb.std() > 10      # a picture, not a message
+        assert np.array_equal(tab.scene_img.image, rgb)                          # and it is what is shown
+        pictures[k] = rgb
+    # steps 2-7 are about a point: one was chosen, explained, and steps 3-7 draw its evidence
+    assert tab.pixel is not None and tab.report is not None
+    assert len({p.shape for p in pictures.values()}) > 2
+    # the arrow keys never turned the photo view (nothing had to be put straight, and it looks
+    # straight at the picture: only the distance changes, to fit each step's picture)
+    assert not [e for e in tab.events[n0:] if e[0] == "camera straightened"]
+    c = camera(tab)
+    assert np.allclose(c[:2], c[3:5], atol=1e-6) and np.allclose(c[3:], cam0[3:], atol=1e-6)
+    # left goes back, and stops at step 1 / 7 at the ends
+    n = len(tab.events)
+    nothing_focused(page)
+    page.keyboard.press("ArrowLeft")
+    wait_event(tab, "tour shown", lambda v: v == 6, after=n)
+    # a focused control keeps its arrow keys: the threshold's number box, then Next by mouse
+    box = page.locator(f'[id="{tab.sl_thr._impl.uuid}"]').locator("xpath=../..").locator(
+        "input.mantine-NumberInput-input")
+    if page.get_by_text("Threshold", exact=True).first.is_visible():
+        n = len(tab.events)
+        box.focus()
+        page.keyboard.press("ArrowRight")
+        page.get_by_role("button", name="Next ▶").click()
+        wait_event(tab, "tour", lambda v: v == 7, after=n)
+        assert [e for e in tab.events[n:] if e[0] == "tour"] == [("tour", 7)]
+    # a step directly
+    n, reports, shape = len(tab.events), tab.camera_reports, tour.layout.rgb.shape
+    page.get_by_role("button", name="2", exact=True).click()
+    wait_event(tab, "tour shown", lambda v: v == 2, after=n)
+    settled(tab)
+    new = tour.layout.rgb.shape
+    if abs(new[1] / new[0] - shape[1] / shape[0]) > 1e-6:          # refitted (Session._show_scene): the browser
+        wait_for(lambda: tab.camera_reports > reports, what="the browser's camera")  # has the new view
+    # a click on the reference in the step's picture explains that point
+    x0, y0, s = tour.layout.ref_box
+    h, w = app.photo_set.photos[tab.settings.ref].size
+    u, v = round(0.45 * w), round(0.6 * h)
+    fx, fy = tour.picture_to_canvas((u + 0.5) * s - 0.5 + x0, (v + 0.5) * s - 0.5 + y0)
+    bb = page.locator("canvas").first.bounding_box()
+    n = len(tab.events)
+    page.mouse.click(bb["x"] + fx, bb["y"] + fy)
+    wait_event(tab, "pixel", after=n)
+    assert np.allclose(tab.pixel, (u, v), atol=1.5)
+    wait_event(tab, "explained", after=n, timeout=120)
+    # presenter mode, then leave the tour: the plain view comes back
+    page.get_by_label("Presenter mode").check()
+    wait_event(tab, "presenter", lambda v: v is True)
+    n = len(tab.events)
+    page.get_by_role("button", name="Leave the tour").click()
+    wait_event(tab, "tour", lambda v: v == 0, after=n)
+    settled(tab)
+    assert tour.layout is None
+    page.get_by_role("button", name="Take the guided tour").wait_for()
+    print("tour step ms (server-side, step change to picture sent):", [round(x, 1) for x in tour.step_ms])
+    page.close()
+
+
+def test_prepared_link(browser, app):
+    from inspector.state import PreparedState, to_query
+    model = app.model("default")
+    wait_for(lambda: model.status == "done", 900, "the run")
+    stems = app.stems
+    ref = next(i for i in range(len(stems)) if len(model.supports[i]) >= 2 and i != model.first_ref)
+    off, sup = stems[model.supports[ref][0]], stems[model.supports[ref][1]]
+    want = PreparedState(set=app.photo_set.name, preset="default", ref=stems[ref], off=(off,), threshold=0.42,
+                         pixel=(100.0, 80.0), step=4, support=sup)
+    page, tab = open_tab(browser, app, app.url + "?" + to_query(want))
+    wait_event(tab, "prepared")
+    wait_event(tab, "tour shown", lambda v: v == 4, timeout=120)
+    settled(tab)
+    page.get_by_text("Step 4 of 7").wait_for()
+    assert tab.settings.ref == ref and page.get_by_role("combobox", name="Reference", exact=True).input_value() == stems[ref]
+    assert stems.index(off) not in tab.settings.supports and stems.index(sup) in tab.settings.supports
+    assert tab.settings.threshold == pytest.approx(0.42)
+    assert np.allclose(tab.pixel, (100, 80))
+    assert tab.tour.step == 4 and tab.tour.sup == stems.index(sup)
+    assert tab.report is not None and np.allclose(tab.report.xy, (100, 80))
+    # the same state back as a link
+    n = len(tab.events)
+    page.get_by_role("button", name="Link to this view").click()
+    wait_event(tab, "link", after=n)
+    link = next(v for w, v in tab.events[n:] if w == "link")
+    q = parse_qs(urlparse(link).query)
+    assert q["ref"] == [stems[ref]] and q["off"] == [off] and q["step"] == ["4"] and q["support"] == [sup]
+    assert q["pixel"] == ["100,80"] and float(q["threshold"][0]) == pytest.approx(0.42)
+    page.get_by_text(link).first.wait_for()
+    page.close()
+
+
+def test_bad_link_says_so(browser, app):
+    page, tab = open_tab(browser, app, app.url + "?ref=no_such_photo&step=3")
+    wait_event(tab, "prepared")
+    page.get_by_text(re.compile("no photo no_such_photo")).wait_for()
+    assert tab.tour.step == 3
+    page.close()
