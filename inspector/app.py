@@ -10,6 +10,13 @@ The photo stays put: viser's camera orbits on a left drag over empty space and o
 Keys pressed on a focused control are kept from reaching the camera (a small key listener in
 the page, KEYS_STAY_WITH_CONTROLS), and the server puts any turned camera back to look straight
 at the photo, keeping its pan and zoom (Session._straighten).
+
+The Geometry view (issue 10) is the one opt-in 3-D view, and it may orbit: the set's cameras as
+the pipeline's reconstruction placed them (viser frustums with their photos), the sparse points,
+and for a clicked reference pixel its viewing ray and its epipolar line in every support, coloured
+by the pair's uncertainty (geometry_view reads SetCameras and the pairs' F / H; it estimates
+nothing). It is drawn by a redrawer of its own, so the threshold's path to the picture is the same
+as without it.
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ from pipeline.output import to_original
 from pipeline.params import PRESETS, get_preset
 
 from . import compose, render
+from . import geometry_view as gv
 from .memory import limit_malloc_arenas
 from .tour import Tour
 from .model import (Score, SetBest, SetModel, Settings, TermCache, gt_at_working, score, set_best_threshold,
@@ -71,6 +79,13 @@ HINT_NOEV = ("What a support says where it does not see the point: no opinion (0
              "reads as moving (the paper, §3.1).")
 HINT_BEST_IMG = ("Set the threshold that gives this photo the highest Jaccard with its ground truth "
                  "(§4.2, optimised per image).")
+PHOTO_VIEW = "Photo and map"
+GEOMETRY_VIEW = "Geometry (3-D)"
+HINT_VIEW = ("Photo and map: the reference with its colours; it stays straight (pan and zoom only). Geometry "
+             "(3-D): the cameras as the set's reconstruction placed them and its 3-D points; drag to turn. Click "
+             "the reference's picture there to see the point's viewing ray and, in every support, the line where "
+             "it can lie (its epipolar line), coloured by how sure that pair's geometry is.")
+THUMB_WIDTH = {True: 320, False: 192}   # a frustum's picture: the reference's larger (it is clicked)
 HINT_BEST_SET = ("Set the one threshold that gives the whole set the highest mean Jaccard, over the maps that "
                  "exist (§4.2, optimised per set).")
 
@@ -145,6 +160,24 @@ class Redrawer:
         self._wake.set()
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout=10)
+
+
+@dataclasses.dataclass
+class GeometryScene:
+    """What a tab's Geometry view has drawn. key: (preset, id of the SetCameras, reference);
+    frame, depth, frustums: geometry_view's display frame, picture depth and frustums (by_photo:
+    the same by photo index); root: the scene node everything hangs from; cameras: the frustum
+    handles by photo; pixel_nodes: the clicked pixel's ray, lines and mark."""
+
+    key: tuple
+    ref: int
+    frame: gv.DisplayFrame
+    depth: float
+    frustums: list[gv.Frustum]
+    by_photo: dict[int, gv.Frustum]
+    root: object
+    cameras: dict[int, object]
+    pixel_nodes: dict[str, object] = dataclasses.field(default_factory=dict)
 
 
 class Inspector:
@@ -280,6 +313,12 @@ class Session:
         self.camera_reports = 0                             # camera reports handled (tests)
         self.main_ms: list[float] = []                      # server-side redraw times of the main view
         self.events: list[tuple[str, object]] = []          # what the tab did, for tests and debugging
+        self.view = "photo"                                  # the main view: "photo" or "geometry" (3-D)
+        self.geo: GeometryScene | None = None               # what the Geometry view has drawn
+        self.geo_lines: list[gv.SupportLine] = []           # the clicked pixel in every support (Geometry view)
+        self.geo_ray: np.ndarray | None = None              # (3, 3) its viewing ray: centre, near, far (display)
+        self._geo_camera: tuple | None = None               # the 3-D viewpoint to come back to
+        self._geo_builds = 0
         self.hold_slow: threading.Event | None = None       # tests: a slow draw waits here before publishing
         self.slow_waiting = threading.Event()
         self._boxes: dict[int, viser.GuiCheckboxHandle] = {}
@@ -296,6 +335,7 @@ class Session:
         self.fast = Redrawer(f"tab{client.client_id}-fast", self._draw_fast)
         self.slow = Redrawer(f"tab{client.client_id}-slow", self._draw_slow)
         self.tour = Tour(self)
+        self.geo_draw = Redrawer(f"tab{client.client_id}-geometry", self._draw_geometry)
 
     # ------------------------------------------------------------------ GUI
     def _build(self) -> None:
@@ -322,6 +362,10 @@ class Session:
                                        hint="The photo whose moving regions are shown; its supports are the other "
                                             "photos whose geometry with it can be trusted (§3).")
         self.dd_preset = gui.add_dropdown("Preset", options=list(PRESETS), initial_value=s.preset, hint=HINT_PRESET)
+        self.dd_view = gui.add_dropdown("Main view", options=[PHOTO_VIEW, GEOMETRY_VIEW], initial_value=PHOTO_VIEW,
+                                        hint=HINT_VIEW)
+        self.img_geo_key = gui.add_image(compose.geometry_key(KEY_WIDTH), format="png", visible=False)
+        self.md_geo = gui.add_markdown("", visible=False)
         self.f_sup = gui.add_folder("Supports")
         with self.f_sup:
             self.md_sup = gui.add_markdown("", order=1e6)
@@ -421,8 +465,9 @@ class Session:
             h.on_update(self._on_control)
         self.dd_ref.on_update(self._on_ref)
         self.dd_preset.on_update(self._on_preset)
+        self.dd_view.on_update(self._on_view)
         self.dd_large.on_update(self._on_large)
-        self.btn_reset.on_click(lambda _ev: self._fit_camera())
+        self.btn_reset.on_click(lambda _ev: self._fit_camera() if self.view == "photo" else self._overview_camera())
         for b in (self.btn_best_img, self.btn_best_img_top):
             b.on_click(lambda _ev: self._use_best("photo"))
         for b in (self.btn_best_set, self.btn_best_set_top):
@@ -443,6 +488,7 @@ class Session:
         self._closed = True
         self.fast.stop()
         self.slow.stop()
+        self.geo_draw.stop()
 
     # ------------------------------------------------------------------ state changes (callbacks)
     def _record(self, what: str, value: object) -> None:
@@ -498,6 +544,7 @@ class Session:
         self._clear(keep_pixel=False)
         self.fast.request("status", "main", "supports")
         self.slow.request("sweep", "setbest")
+        self.geo_draw.request("scene")
         self._record("ref", self.app.stems[ref])
 
     def _on_preset(self, _ev=None) -> None:
@@ -518,6 +565,7 @@ class Session:
         self.model_changed(self.app.model(preset))
         self.fast.request("status", "main", "supports")
         self.slow.request("sweep", "pixel", "setbest")
+        self.geo_draw.request("scene")
         self._record("preset", preset)
 
     def _preset_controls(self, preset: str) -> None:
@@ -616,25 +664,208 @@ class Session:
         u, v = (p[0] / rw + 0.5) * w - 0.5, (p[1] + 0.5) * h - 0.5
         if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
             return
-        self.pixel = np.array([np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)])
+        self._set_pixel(np.array([np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)]))
+
+    def _on_geometry_click(self, ev) -> None:
+        """A click on the reference's picture in the Geometry view: the pixel under it."""
+        geo = self.geo
+        if geo is None or geo.ref != self.settings.ref or geo.ref not in geo.by_photo:
+            return
+        xy = gv.plane_to_pixel(geo.by_photo[geo.ref], self.app.photo_set.photos[geo.ref].size, ev.ray_origin,
+                               ev.ray_direction)
+        if xy is not None:
+            self._set_pixel(xy)
+
+    def _set_pixel(self, xy: np.ndarray) -> None:
+        """Explain working pixel xy of the reference (from either view)."""
+        self.pixel = np.asarray(xy, np.float64)
         with self._pub:
             self._bump("pixel")
             self.md_pixel.content = f"**Pixel ({self.pixel[0]:.0f}, {self.pixel[1]:.0f})**: {COMPUTING}"
         self.fast.request("main")
         self.slow.request("pixel")
+        self.geo_draw.request("ray")
         self._record("pixel", (round(float(self.pixel[0]), 1), round(float(self.pixel[1]), 1)))
 
     def pixel_to_canvas(self, u: float, v: float) -> tuple[float, float]:
-        """Where working pixel (u, v) of the reference appears in the canvas (CSS px), from the
-        camera the browser last reported (for tests and screenshots)."""
-        cam = self.client.camera
+        """Where working pixel (u, v) of the reference appears in the canvas, as fractions of its
+        width and height, from the camera the browser last reported (for tests and screenshots)."""
         h, w = self.app.photo_set.photos[self.settings.ref].size
         rw = float(self.scene_img.render_width)
-        X = np.array([((u + 0.5) / w - 0.5) * rw, (v + 0.5) / h - 0.5, 0.0])
+        return self.world_to_canvas(np.array([((u + 0.5) / w - 0.5) * rw, (v + 0.5) / h - 0.5, 0.0]))
+
+    def world_to_canvas(self, X: np.ndarray) -> tuple[float, float]:
+        """Where scene point X appears in the canvas, as fractions of its width and height (the
+        camera's reported image size is the render size, which viser may scale down from the
+        canvas's CSS size), from the camera the browser last reported."""
+        cam = self.client.camera
         R = _quat_to_matrix(np.asarray(cam.wxyz, np.float64))           # camera -> world, OpenCV axes
-        x = R.T @ (X - np.asarray(cam.position, np.float64))
+        x = R.T @ (np.asarray(X, np.float64) - np.asarray(cam.position, np.float64))
         f = 0.5 * cam.image_height / np.tan(cam.fov / 2)
-        return cam.image_width / 2 + f * x[0] / x[2], cam.image_height / 2 + f * x[1] / x[2]
+        return 0.5 + f * x[0] / x[2] / cam.image_width, 0.5 + f * x[1] / x[2] / cam.image_height
+
+    # ------------------------------------------------------------------ the Geometry view (3-D)
+    def _on_view(self, _ev=None) -> None:
+        view = "geometry" if self.dd_view.value == GEOMETRY_VIEW else "photo"
+        if view == self.view:
+            return
+        photo = view == "photo"
+        if photo and self.geo is not None:      # come back to this viewpoint
+            cam = self.client.camera
+            self._geo_camera = (self.geo.key, tuple(cam.position), tuple(cam.look_at))
+        with self._pub:
+            self.view = view
+            self.scene_img.visible = photo
+            if self.geo is not None:
+                self.geo.root.visible = not photo
+            self.md_caption.visible = self.img_key.visible = photo
+            self.md_geo.visible = self.img_geo_key.visible = not photo
+            self._draw_notice(self.notice, self.score)
+        if photo:
+            self._fit_camera()
+        else:
+            self.md_geo.content = f"Geometry: {COMPUTING}"
+            self.geo_draw.request("scene", "ray")
+        self._record("view", view)
+
+    def _overview_camera(self) -> None:
+        if self.geo is None:
+            return
+        try:
+            fov, aspect = float(self.client.camera.fov), float(self.client.camera.aspect)
+        except Exception:               # no camera report from the browser yet
+            fov, aspect = np.deg2rad(75.0), 1.0
+        position, look_at = gv.overview_camera(self.geo.frustums, fov, aspect)
+        with self.client.atomic():          # position first: it drags look_at along
+            self.client.camera.position = tuple(position)
+            self.client.camera.look_at = tuple(look_at)
+            self.client.camera.up_direction = (0.0, -1.0, 0.0)
+
+    def _draw_geometry(self, what: set[str]) -> None:
+        """The Geometry view, when it is shown: the scene again when the cameras, the reference or
+        the preset changed, then the clicked pixel's ray and lines."""
+        if self.view != "geometry" or self._closed:
+            return
+        s = self.settings
+        snap = self.app.model(s.preset).snapshot()
+        cams = snap.cameras if snap is not None else None
+        if snap is None or cams is None or not cams.n_registered:
+            if self.geo is not None:
+                self.geo.root.visible = False
+            if snap is None:
+                text = f"Geometry: {COMPUTING}"
+            elif not snap.params.geometry.reconstruction:
+                text = (f"**No cameras in the `{s.preset}` preset**: it uses each pair's own two-view geometry "
+                        "(the paper's method) or one homography per pair. Choose the `default` preset to see the "
+                        "set's cameras in 3-D.")
+            else:
+                text = (f"**No camera could be placed for {self.app.photo_set.name}**"
+                        + (f" ({cams.reasons[0]})" if cams is not None and cams.reasons else "")
+                        + ": every pair uses its own two-view geometry.")
+            with self._pub:
+                if self.view == "geometry":
+                    self.md_geo.content = text
+            self._record("geometry", None)
+            return
+        key = (s.preset, id(cams), s.ref)
+        if self.geo is None or self.geo.key != key:
+            self._build_geometry(snap, key)
+        self._draw_geometry_pixel(snap)
+
+    def _build_geometry(self, snap, key: tuple) -> None:
+        cams, ref = snap.cameras, key[2]
+        photos = self.app.photo_set.photos
+        sizes = [p.size for p in photos]
+        frame = gv.display_frame(cams)
+        depth = gv.frustum_depth(frame, cams)
+        frustum_list = gv.frustums(cams, sizes, frame, depth, ref)
+        supports = snap.supports[ref]
+        scene = self.client.scene
+        old, first = self.geo, self.geo is None or self.geo.key[:2] != key[:2]
+        self._geo_builds += 1                 # a new name each time: the old scene is removed after
+        root = scene.add_frame(f"/geometry_{self._geo_builds}", show_axes=False, visible=self.view == "geometry")
+        points, colours = gv.scene_points(cams, frame)
+        scene.add_point_cloud(f"{root.name}/points", points, colours, point_size=0.006,
+                              point_shape="rounded")
+        handles = {}
+        for f in frustum_list:
+            k = f.photo
+            # frames say the photo's role; the uncertainty colours are the lines' alone, so that a
+            # line reads against its frame
+            g = snap.pairs.get((ref, k))
+            if k == ref:
+                colour = gv.REFERENCE_RGB
+            elif k in supports and g is not None and g.ok:
+                colour = gv.SUPPORT_RGB
+            else:
+                colour = gv.OTHER_RGB
+            h = scene.add_camera_frustum(f"{root.name}/cameras/{k}", fov=f.fov, aspect=f.aspect, scale=1.0,
+                                         thickness=4.0 if k == ref else 2.5, thickness_units="screen", color=colour,
+                                         image=render.fit(photos[k].rgb, THUMB_WIDTH[k == ref]), format="jpeg",
+                                         jpeg_quality=85, wxyz=viser.transforms.SO3.from_matrix(f.rotation).wxyz,
+                                         position=f.position)
+            h.scale = f.depth / h.compute_canonical_frustum_size()[2]      # the picture at z = depth
+            if k == ref:
+                h.on_click(self._on_geometry_click)
+            handles[k] = h
+        # one label per camera place, above its first picture (shots from one spot share a place)
+        for n, group in enumerate(gv.label_groups(frustum_list, ref)):
+            f = group[0]
+            h, w = sizes[f.photo]
+            top = gv.pixel_on_plane(f, sizes[f.photo], np.array([[w / 2, -0.1 * h]]))[0]
+            names = [self.app.stems[g.photo] + (" (reference)" if g.photo == ref else "") for g in group]
+            scene.add_label(f"{root.name}/labels/{n}", " · ".join(names), position=top, anchor="bottom-center",
+                            font_screen_scale=0.8)
+        geo = GeometryScene(key, ref, frame, depth, frustum_list, {f.photo: f for f in frustum_list}, root, handles)
+        with self._pub:
+            self.geo = geo
+            if old is not None:
+                old.root.remove()
+            self.geo_lines, self.geo_ray = [], None
+        if self._geo_camera is not None and self._geo_camera[0] == key and not first:
+            with self.client.atomic():
+                self.client.camera.position, self.client.camera.look_at = self._geo_camera[1:]
+        elif first or self._geo_camera is None or self._geo_camera[0][:2] != key[:2]:
+            self._overview_camera()
+        self._record("geometry scene", (self.app.stems[ref], len(frustum_list)))
+
+    def _draw_geometry_pixel(self, snap) -> None:
+        """The clicked pixel in 3-D: its viewing ray (from the reference's centre; thick over the
+        scene's depth range) and where it can lie in every support, on the supports' pictures."""
+        geo, pixel, ref = self.geo, self.pixel, self.settings.ref
+        cams = snap.cameras
+        scene = self.client.scene
+        sizes = [p.size for p in self.app.photo_set.photos]
+        supports = snap.supports[ref]
+        lines = gv.support_lines(snap.pairs, ref, supports, sizes, pixel) if pixel is not None else []
+        text = compose.geometry_markdown(self.app.photo_set.name, self.app.stems, ref, cams, snap.pairs, supports,
+                                         lines)
+        with self._pub:
+            if self.geo is not geo or self._closed:
+                return
+            for name in ("ray", "lines", "mark"):
+                if name in geo.pixel_nodes:
+                    geo.pixel_nodes.pop(name).remove()
+            self.geo_lines, self.geo_ray = lines, None
+            if pixel is not None and ref in geo.by_photo:
+                ray = gv.viewing_ray(cams, geo.frame, ref, pixel)
+                # thin from the camera to the scene's near depth, thick across the scene's depth range
+                geo.pixel_nodes["ray"] = scene.add_line_segments(
+                    f"{geo.root.name}/ray", np.stack([ray[:2], ray[1:]]),
+                    np.array([[gv.OTHER_RGB] * 2, [gv.REFERENCE_RGB] * 2], np.uint8), thickness=4.0,
+                    thickness_units="screen")
+                segments, colours = gv.support_segments(lines, geo.by_photo, sizes)
+                if len(segments):
+                    geo.pixel_nodes["lines"] = scene.add_line_segments(f"{geo.root.name}/lines", segments, colours,
+                                                                       thickness=5.0, thickness_units="screen")
+                h, w = sizes[ref]
+                mark = gv.pixel_on_plane(geo.by_photo[ref], sizes[ref], gv.cross(pixel, 0.03 * max(h, w)).reshape(-1, 2),
+                                         inset=0.01).reshape(-1, 2, 3)
+                geo.pixel_nodes["mark"] = scene.add_line_segments(f"{geo.root.name}/mark", mark, (255, 255, 255),
+                                                                  thickness=3.0, thickness_units="screen")
+                self.geo_ray = ray
+            self.md_geo.content = text
+        self._record("geometry pixel", None if pixel is None else (tuple(np.round(pixel, 1)), len(lines)))
 
     # ------------------------------------------------------------------ the camera
     def _on_camera(self, cam) -> None:
@@ -645,6 +876,9 @@ class Session:
             aspect = float(cam.aspect)
             self.canvas_width = int(cam.image_width)
         except Exception:
+            return
+        if self.view == "geometry":         # the opt-in 3-D view: turning it is the point
+            self.camera_reports += 1
             return
         if not self._straighten(cam) and abs(aspect - self._fit_aspect) > 0.01 * self._fit_aspect:
             self._fit_camera()
@@ -704,6 +938,8 @@ class Session:
                 self.dd_ref.value = self.app.stems[first]      # fires _on_ref
         ready = sum(1 for (i, _j) in list(model.results) if i == self.settings.ref)
         self.fast.request("status")
+        if self.view == "geometry" and (self.geo is None or self.geo.key[1] != id(model.cameras)):
+            self.geo_draw.request("scene")        # the cameras became known (or the preset changed)
         if ready != self.ready_count or model.status in ("done", "failed"):
             self.ready_count = ready
             self.fast.request("main", "supports")
@@ -765,10 +1001,11 @@ class Session:
             text = (f"Showing the support **{self.app.stems[self.large]}** large (Pixel tab, *Show large*: "
                     "choose *the map* to go back).") + ("\n\n" + text if text else "")
         self.md_notice.content = text
-        self.md_notice.visible = bool(text)
+        photo = self.view == "photo"
+        self.md_notice.visible = bool(text) and photo
         offer = (notice.empty or notice.doubtful) and self.app.gts.get(self.app.stems[self.settings.ref]) is not None
-        self.btn_best_img_top.visible = offer and sc is not None
-        self.btn_best_set_top.visible = offer and self.set_best is not None
+        self.btn_best_img_top.visible = offer and sc is not None and photo
+        self.btn_best_set_top.visible = offer and self.set_best is not None and photo
         if sc is not None:
             self.btn_best_img_top.label = f"Use this photo's best threshold ({sc.best_threshold:.3f})"
 

@@ -535,3 +535,44 @@ HELP = """
 - **–**: no value: the patch had no candidate (out of the support's view), or the pair is not in
   the depth sweep (no camera for it).
 """
+
+
+# ----------------------------------------------------------------------------- the Geometry view
+def geometry_key(width: int, size: int = 13) -> np.ndarray:
+    """The Geometry view's legend: what the frames' and lines' colours say (the epipolar-line
+    uncertainty classes of geometry_view), the reference, the other photos and the ray."""
+    from .geometry_view import OTHER_RGB, REFERENCE_RGB, SUPPORT_RGB, UNCERTAINTY_CLASSES, UNKNOWN_RGB
+    title = render.paragraph("The clicked point's line in each support: how sure its geometry is (1 σ of the "
+                             "epipolar line, px)", width, size, bold=True)
+    items = [(c, "line", words) for _, c, words in UNCERTAINTY_CLASSES] + [(UNKNOWN_RGB, "line", "unknown")]
+    items += [(REFERENCE_RGB, "line", "the point's viewing ray"), (REFERENCE_RGB, "box", "the reference"),
+              (SUPPORT_RGB, "box", "a support"), (OTHER_RGB, "box", "not a support")]
+    return render.stack([title, render.legend(items, width, size)], gap=0)
+
+
+def geometry_markdown(set_name: str, stems: list[str], ref: int, cams, pairs: dict, supports: list[int],
+                      lines: list | None = None) -> str:
+    """What the Geometry view shows, how to use it, and each support's geometry: its source
+    (reconstruction, two-view, homography) and the uncertainty of its lines (1 σ, px)."""
+    from .geometry_view import uncertainty_words
+    n_cam = int(cams.registered.sum())
+    head = (f"**Geometry of {set_name}**: {n_cam} of {len(stems)} photos have a camera from the set's "
+            f"reconstruction, with {len(cams.points)} sparse 3-D points (mean reprojection error "
+            f"{cams.mean_reproj_px:.2f} px). Drag to turn, scroll to zoom. "
+            f"**Click the reference's picture ({stems[ref]}, black frame)**: its viewing ray is drawn, and in every "
+            "support the line where that point can lie (its epipolar line; a cross for a homography pair).")
+    if not cams.registered[ref]:
+        head += f"\n\n**{stems[ref]} has no camera** ({cams.reasons[ref]}): no ray to draw; its pairs use two-view geometry."
+    drawn = {ln.sup: ln for ln in (lines or [])}
+    rows = ["| support | geometry | uncertainty |", "|---|---|--:|"]
+    for j in supports:
+        g = pairs.get((ref, j))
+        if g is None:
+            continue
+        source = g.source or "rejected"
+        if not cams.registered[j]:
+            source += " (no camera)"
+        elif j in drawn and drawn[j].kind == "epipolar" and drawn[j].segment is None:
+            source += " (line out of view)"
+        rows.append(f"| {stems[j]} | {source} | {uncertainty_words(g.uncertainty_px)} |")
+    return head + "\n\n" + "\n".join(rows)

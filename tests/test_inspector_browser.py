@@ -4,8 +4,9 @@ The inspector runs in this process (so the test can read what the server compute
 opens the page while pairs are still being computed, changes the reference, unticks a support,
 moves the threshold, clicks a pixel, downloads the map, and a second tab keeps its own state.
 Further tests, each in a tab of its own on the same computed set: keys on a focused control
-leave the photo straight, a change of reference leaves nothing of the old one on the page, and
-"use the best threshold" sets what the Evaluation folder reports.
+leave the photo straight, a change of reference leaves nothing of the old one on the page,
+"use the best threshold" sets what the Evaluation folder reports, and the Geometry view shows the
+cameras in 3-D and a clicked pixel's ray and epipolar lines.
 Screenshots are kept under the pytest temp dir (printed at the end).
 
 No test sleeps to wait for a state: they wait for the session's recorded events, the redrawers'
@@ -131,9 +132,9 @@ def canvas_shot(page, path):
 def click_pixel(page, tab, u, v):
     """Click working pixel (u, v) of the reference where the browser's camera shows it."""
     box = page.locator("canvas").first.bounding_box()
-    x, y = tab.pixel_to_canvas(u, v)
+    fx, fy = tab.pixel_to_canvas(u, v)
     n = len(tab.events)
-    page.mouse.click(box["x"] + x, box["y"] + y)
+    page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
     wait_event(tab, "explained", after=n)
     settled(tab)
 
@@ -334,9 +335,9 @@ def test_keys_on_a_control_leave_the_photo_straight(app, browser, shots):
         n = tab.camera_reports
         page.mouse.wheel(0, 200)
         wait_for(lambda: tab.camera_reports > n, what="the zoom")
-        if tab.pixel_to_canvas(-0.5, -0.5)[0] > 60:             # the photo's left edge, canvas px
+        if tab.pixel_to_canvas(-0.5, -0.5)[0] * box["width"] > 60:     # the photo's left edge, canvas px
             break
-    left = tab.pixel_to_canvas(-0.5, -0.5)[0]
+    left = tab.pixel_to_canvas(-0.5, -0.5)[0] * box["width"]
     assert left > 60, left
     zoomed = np.linalg.norm(np.asarray(cam.look_at) - np.asarray(cam.position))
     assert zoomed > 1.05 * dist
@@ -383,8 +384,8 @@ def test_a_new_reference_leaves_nothing_of_the_old(app, browser, shots):
     tab.hold_slow = threading.Event()
     tab.slow_waiting.clear()
     box = page.locator("canvas").first.bounding_box()
-    x, y = tab.pixel_to_canvas(0.4 * w, 0.5 * h)
-    page.mouse.click(box["x"] + x, box["y"] + y)
+    fx, fy = tab.pixel_to_canvas(0.4 * w, 0.5 * h)
+    page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
     assert tab.slow_waiting.wait(60)
     # another photo, with another number of supports where the set has one (the sweep's axis)
     others = [i for i, s in enumerate(snap.supports) if s and i != old]
@@ -469,4 +470,117 @@ def test_use_the_best_threshold(app, browser, shots):
     wait_event(tab, "settings", lambda s: abs(s.threshold - want) < 1e-9, after=n)
     settled(tab)
     assert number_box(page, tab.sl_thr).input_value() == f"{want:g}"
+    page.context.close()
+
+
+def test_geometry_view_in_3d(app, browser, shots):
+    """Geometry (3-D): the reconstruction's cameras as frustums with their pictures and the
+    sparse points; a click on the reference's picture draws that pixel's viewing ray and, in
+    every support, its epipolar line (the pair's own F) coloured by the pair's uncertainty. For
+    pairs whose F comes from the cameras, the line is where the ray projects. This view may
+    orbit; back in the photo view the photo is straight again."""
+    from inspector import geometry_view as gv
+    from inspector.app import GEOMETRY_VIEW, PHOTO_VIEW
+    from pipeline.geometry import epipolar_lines
+    page, tab = ready_tab(browser, app)
+    snap = app.models["default"].snapshot()
+    cams = snap.cameras
+    assert cams is not None and cams.n_registered >= 2
+    ref = tab.settings.ref
+    assert cams.registered[ref]
+    n = len(tab.events)
+    page.get_by_role("combobox", name="Main view").click()
+    page.get_by_role("option", name=GEOMETRY_VIEW).click()
+    wait_event(tab, "geometry scene", after=n)
+    wait_event(tab, "geometry pixel", after=n)
+    geo = tab.geo
+    # a frustum per registered photo, with its picture; the reference in black, supports and
+    # the others in their own colours; the sparse points; the photo itself hidden
+    assert sorted(geo.cameras) == [int(k) for k in np.nonzero(cams.registered)[0]]
+    sups = snap.supports[ref]
+    for k, frustum in geo.cameras.items():
+        assert frustum.visible and frustum.image is not None and frustum.image.shape[2] == 3
+        want = gv.REFERENCE_RGB if k == ref else gv.SUPPORT_RGB if k in sups else gv.OTHER_RGB
+        assert tuple(int(c) for c in frustum.color) == want
+    assert geo.root.visible and not tab.scene_img.visible
+    page.get_by_text("Click the reference's picture").wait_for(timeout=10_000)    # what to do, in words
+    from inspector import compose
+    from inspector.app import KEY_WIDTH
+    assert np.array_equal(tab.img_geo_key.image, compose.geometry_key(KEY_WIDTH))   # the colours' legend
+    assert tab.img_geo_key.visible and tab.md_geo.visible and not tab.img_key.visible
+
+    # the browser has the overview camera (a report after a viewport change says so)
+    overview = np.asarray(tab.client.camera.position).copy()
+    _camera_report(page, tab, (1281, 720))
+    assert np.allclose(tab.client.camera.position, overview, atol=1e-6)
+
+    # click a pixel of the reference's picture
+    h, w = app.photo_set.photos[ref].size
+    target = np.array([0.55 * w, 0.45 * h])
+    X = gv.pixel_on_plane(geo.by_photo[ref], (h, w), target[None])[0]
+    fx, fy = tab.world_to_canvas(X)
+    box = page.locator("canvas").first.bounding_box()
+    n = len(tab.events)
+    page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
+    wait_event(tab, "geometry pixel", lambda v: v is not None, after=n)
+    assert np.abs(tab.pixel - target).max() < 0.03 * max(h, w)          # a canvas pixel is a few photo pixels
+    xy = tab.pixel
+
+    # the ray: from the reference's centre, through the clicked pixel (the pipeline's camera)
+    ray = tab.geo_ray
+    assert "ray" in geo.pixel_nodes and np.allclose(np.asarray(geo.pixel_nodes["ray"].points)[0, 0], ray[0])
+    world = ray / geo.frame.scale @ geo.frame.rotation + geo.frame.centre          # display -> world
+    assert np.allclose(world[0], cams.C[ref], atol=1e-6)
+    for Xw in world[1:]:
+        x = cams.P(ref) @ np.append(Xw, 1.0)
+        assert np.allclose(x[:2] / x[2], xy, atol=1e-4)
+
+    # the lines: one per support with an admitted pair, from the pair's own F (or H)
+    lines = {ln.sup: ln for ln in tab.geo_lines}
+    assert sorted(lines) == sorted(j for j in sups if snap.pairs[(ref, j)].ok)
+    for j, ln in lines.items():
+        g = snap.pairs[(ref, j)]
+        assert ln.colour == gv.uncertainty_colour(g.uncertainty_px)
+        if ln.kind == "homography":
+            q = g.H @ np.append(xy, 1.0)
+            assert np.allclose(ln.point, q[:2] / q[2])
+            continue
+        if ln.segment is None:
+            continue
+        line = epipolar_lines(g.F, xy[None])[0]
+        assert np.abs(np.hstack([ln.segment, np.ones((2, 1))]) @ line).max() < 1e-3
+        if g.source == "reconstruction":                # the line is where the ray projects
+            for Xw in world[1:]:
+                x = cams.P(j) @ np.append(Xw, 1.0)
+                assert abs(line @ np.append(x[:2] / x[2], 1.0)) < 1e-3
+    drawn = [ln for ln in lines.values() if ln.sup in geo.by_photo and
+             (ln.segment is not None or (ln.point is not None and np.all(np.isfinite(ln.point))))]
+    if drawn:
+        segments = np.asarray(geo.pixel_nodes["lines"].points)
+        assert len(segments) == sum(1 if ln.segment is not None else 2 for ln in drawn)
+    page.mouse.move(box["x"] + 5, box["y"] + box["height"] - 5)          # no hover highlight in the picture
+    page.screenshot(path=str(shots / "12_geometry.png"))
+
+    # this view orbits: a drag turns it and nothing puts it back
+    n = len(tab.events)
+    before = np.asarray(tab.client.camera.position).copy()
+    reports = tab.camera_reports
+    x0, y0 = box["x"] + 0.5 * box["width"], box["y"] + box["height"] - 20
+    page.mouse.move(x0, y0)
+    page.mouse.down()
+    for k in range(1, 8):
+        page.mouse.move(x0 + 15 * k, y0, steps=2)
+    page.mouse.up()
+    wait_for(lambda: tab.camera_reports > reports and
+             np.linalg.norm(np.asarray(tab.client.camera.position) - before) > 1e-3, what="the orbit")
+    assert not any(e[0] == "camera straightened" for e in tab.events[n:])
+
+    # back to the photo: straight, the 3-D scene hidden
+    n = len(tab.events)
+    page.get_by_role("combobox", name="Main view").click()
+    page.get_by_role("option", name=PHOTO_VIEW).click()
+    wait_event(tab, "view", lambda v: v == "photo", after=n)
+    _camera_report(page, tab, (1280, 720))
+    wait_for(lambda: _forward(tab.client.camera)[2] > 0.99999, what="the straight camera")
+    assert tab.scene_img.visible and not geo.root.visible and tab.img_key.visible and not tab.md_geo.visible
     page.context.close()
