@@ -47,6 +47,7 @@ from . import compose, render
 from . import geometry_view as gv
 from .memory import limit_malloc_arenas
 from .tour import Tour
+from .gallery_view import GalleryView
 from .model import (Score, SetBest, SetModel, Settings, TermCache, gt_at_working, score, set_best_threshold,
                     usable_supports)
 
@@ -331,10 +332,12 @@ class Session:
         self._epoch = 0                                     # reference and preset
         self._versions = {"sweep": 0, "pixel": 0}         # what the slow views were last asked to show
         self.tour: Tour | None = None                       # the guided tour, prepared links (tour.py)
+        self.gallery: GalleryView | None = None             # the Gallery tab (gallery_view.py)
         self._build()
         self.fast = Redrawer(f"tab{client.client_id}-fast", self._draw_fast)
         self.slow = Redrawer(f"tab{client.client_id}-slow", self._draw_slow)
         self.tour = Tour(self)
+        self.gallery = GalleryView(self)
         self.geo_draw = Redrawer(f"tab{client.client_id}-geometry", self._draw_geometry)
 
     # ------------------------------------------------------------------ GUI
@@ -488,6 +491,8 @@ class Session:
         self._closed = True
         self.fast.stop()
         self.slow.stop()
+        if self.gallery is not None:
+            self.gallery.close()
         self.geo_draw.stop()
 
     # ------------------------------------------------------------------ state changes (callbacks)
@@ -495,6 +500,8 @@ class Session:
         self.events.append((what, value))
         if self.tour is not None:
             self.tour.on_event(what, value)
+        if self.gallery is not None:
+            self.gallery.on_event(what, value)
 
     def _current_settings(self) -> Settings:
         s = self.settings

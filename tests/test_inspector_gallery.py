@@ -1,0 +1,172 @@
+"""The failure gallery in the inspector (inspector/gallery_view.py) in a real browser.
+
+Debian's Chromium driven by Playwright; the inspector runs in this process, so the test reads
+what the server did (the session's recorded events and its gallery). It opens the Gallery tab,
+finds the reference's ranked regions (pipeline.gallery.build_gallery's), opens one and finds its
+explanation: the session's pixel and pixel report are the entry's, in the Gallery tab and in the
+Pixel tab. Another reference replaces the gallery (never a stale one); without ground truth the
+gallery lists uncertain regions.
+
+No test sleeps to wait for a state: they wait for recorded events and the redrawers' idle events.
+"""
+
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import SAMPLE_SETS
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def wait_for(pred, timeout=60.0, what="condition"):
+    """Poll a condition the server sets (an explicit state, not a delay)."""
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        if pred():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def settled(session):
+    for _ in range(1000):
+        assert session.slow.wait_idle(120) and session.fast.wait_idle(60) and session.gallery.draw.wait_idle(120)
+        if session.slow.idle() and session.fast.idle() and session.gallery.draw.idle():
+            return
+    raise AssertionError("the tab never settled")
+
+
+def wait_event(session, name, pred=lambda v: True, after=0, timeout=120.0):
+    def found():
+        return any(e[0] == name and pred(e[1]) for e in session.events[after:])
+    wait_for(found, timeout, f"event {name!r}")
+
+
+def gallery_ready(tab):
+    g = tab.gallery
+    return g.gallery is not None and g.key == g.state()
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("inspector-gallery")
+
+
+def make_app(cache_dir, with_gt: bool, sub: str):
+    from inspector.app import Inspector
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_gts, load_set
+    ps = load_set(SAMPLE_SETS / "tabletop_ball", 256)
+    return Inspector(ps, load_gts(ps) if with_gt else {}, PairCache(cache_dir / "cache"), cache_dir / sub,
+                     port=0, max_side=256, workers=1)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+    assert Path(CHROMIUM).exists(), "Debian's chromium is needed (make test installs it)"
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        yield b
+        b.close()
+
+
+def open_tab(browser, app, viewport=(1366, 768)):
+    page = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}).new_page()
+    before = set(app.sessions)
+    page.goto(app.url)
+    page.get_by_text("Threshold", exact=True).first.wait_for(timeout=60_000)
+    wait_for(lambda: set(app.sessions) - before, what="the tab's session")
+    tab = app.sessions[(set(app.sessions) - before).pop()]
+    page.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=900_000)
+    close = page.locator(".mantine-Notification-closeButton")     # the "software WebGL" toast over the canvas
+    if close.count():
+        close.first.click()
+    settled(tab)
+    return page, tab
+
+
+def test_gallery_entry_opens_its_explanation(browser, cache_dir):
+    from inspector.gallery_view import entry_label
+    from pipeline.gallery import FALSE_ALARM, MISSED
+    app = make_app(cache_dir, True, "out")
+    try:
+        page, tab = open_tab(browser, app)
+        wait_for(lambda: gallery_ready(tab), 300, "the gallery")
+        ref, stem = tab.settings.ref, app.stems[tab.settings.ref]
+        g = tab.gallery.gallery
+        assert g.stem == stem and g.has_gt and g.entries
+        assert {e.region.kind for e in g.entries} <= {MISSED, FALSE_ALARM}
+        assert abs(g.threshold - tab.settings.threshold) < 1e-6
+
+        page.get_by_role("tab", name="Gallery").click()
+        page.get_by_text(f"Failure gallery of {stem}").first.wait_for(timeout=10_000)
+        e = g.entries[0]
+        btn = page.get_by_role("button", name=entry_label(e))
+        btn.wait_for(timeout=10_000)
+        x, y = e.region.pixel
+        assert e.region.full_mask(app.photo_set.photos[ref].size)[y, x]     # the pixel is the region's
+        page.screenshot(path=str(cache_dir / "gallery.png"))
+
+        # one click: the entry's pixel explained, by the path a click on the photo takes
+        n = len(tab.events)
+        btn.click()
+        wait_event(tab, "explained", after=n)
+        settled(tab)
+        names = [ev[0] for ev in tab.events[n:]]
+        assert names.index("gallery open") < names.index("pixel") < names.index("explained")
+        assert ("pixel", (float(x), float(y))) in tab.events[n:]
+        assert tab.settings.ref == ref
+        np.testing.assert_array_equal(tab.pixel, [x, y])
+        rep = tab.report
+        assert rep is not None and rep.ref == ref
+        np.testing.assert_array_equal(rep.xy, [x, y])
+        # the explanation in the Gallery tab, then each support's evidence in the Pixel tab
+        page.get_by_text(re.compile(rf"Pixel \({x}, {y}\)\s*of {stem}: P_dynamic")).locator("visible=true").first.wait_for(timeout=10_000)
+        assert f"{rep.dynamic:.2f}" in tab.gallery.md_explained.content
+        page.get_by_role("tab", name="Pixel").click()
+        page.get_by_text(f"{rep.dynamic:.2f}", exact=True).first.wait_for(timeout=10_000)
+        assert len(rep.evidence) > 0
+
+        # another reference: the old gallery goes at once, the new one is the new reference's
+        other = next(i for i, s in enumerate(app.stems) if i != ref and s in app.gts)
+        n = len(tab.events)
+        tab.dd_ref.value = app.stems[other]          # as the dropdown does (fires _on_ref)
+        wait_event(tab, "gallery", lambda v: v[0] == app.stems[other], after=n, timeout=300)
+        settled(tab)
+        assert tab.gallery.key[1] == other and tab.gallery.gallery.stem == app.stems[other]
+        page.get_by_role("tab", name="Gallery").click()
+        page.get_by_text(f"Failure gallery of {app.stems[other]}").first.wait_for(timeout=10_000)
+        assert tab.gallery.compute_ms
+    finally:
+        app.close()
+
+
+def test_gallery_without_ground_truth_lists_uncertain_regions(browser, cache_dir):
+    from inspector.gallery_view import entry_label
+    from pipeline.gallery import UNCERTAIN
+    app = make_app(cache_dir, False, "out-nogt")
+    try:
+        page, tab = open_tab(browser, app)
+        wait_for(lambda: gallery_ready(tab), 300, "the gallery")
+        g = tab.gallery.gallery
+        assert not g.has_gt
+        assert all(e.region.kind == UNCERTAIN for e in g.entries)
+        page.get_by_role("tab", name="Gallery").click()
+        page.get_by_text("no ground truth", exact=False).first.wait_for(timeout=10_000)
+        if g.entries:
+            e = g.entries[0]
+            n = len(tab.events)
+            page.get_by_role("button", name=entry_label(e)).click()
+            wait_event(tab, "explained", after=n)
+            settled(tab)
+            np.testing.assert_array_equal(tab.report.xy, list(e.region.pixel))
+    finally:
+        app.close()
