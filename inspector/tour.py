@@ -222,8 +222,10 @@ class Tour:
         return True
 
     def picture_to_canvas(self, cx: float, cy: float) -> tuple[float, float]:
-        """Where pixel (cx, cy) of the step's picture appears in the canvas (CSS px), from the
-        camera the browser last reported (tests and screenshots)."""
+        """Where pixel (cx, cy) of the step's picture appears in the canvas, as fractions of its
+        width and height, from the camera the browser last reported (tests and screenshots).
+        Fractions, not pixels: viser reports its render size, which it scales below the canvas's
+        on-screen size on large windows and under load."""
         from .app import _quat_to_matrix
         H, W = self.layout.rgb.shape[:2]
         rw = float(self.s.scene_img.render_width)
@@ -232,7 +234,7 @@ class Tour:
         R = _quat_to_matrix(np.asarray(cam.wxyz, np.float64))
         x = R.T @ (X - np.asarray(cam.position, np.float64))
         f = 0.5 * cam.image_height / np.tan(cam.fov / 2)
-        return cam.image_width / 2 + f * x[0] / x[2], cam.image_height / 2 + f * x[1] / x[2]
+        return (0.5 + f * x[0] / x[2] / cam.image_width), (0.5 + f * x[1] / x[2] / cam.image_height)
 
     def pick(self, xy) -> None:
         """Explain reference pixel xy (what a click on the plain view does)."""

@@ -180,7 +180,7 @@ def test_tour_walk_keys_and_click(browser, app):
     fx, fy = tour.picture_to_canvas((u + 0.5) * s - 0.5 + x0, (v + 0.5) * s - 0.5 + y0)
     bb = page.locator("canvas").first.bounding_box()
     n = len(tab.events)
-    page.mouse.click(bb["x"] + fx, bb["y"] + fy)
+    page.mouse.click(bb["x"] + fx * bb["width"], bb["y"] + fy * bb["height"])
     wait_event(tab, "pixel", after=n)
     assert np.allclose(tab.pixel, (u, v), atol=1.5)
     wait_event(tab, "explained", after=n, timeout=120)
