@@ -177,11 +177,22 @@ def test_tour_walk_keys_and_click(browser, app):
     x0, y0, s = tour.layout.ref_box
     h, w = app.photo_set.photos[tab.settings.ref].size
     u, v = round(0.45 * w), round(0.6 * h)
-    fx, fy = tour.picture_to_canvas((u + 0.5) * s - 0.5 + x0, (v + 0.5) * s - 0.5 + y0)
-    bb = page.locator("canvas").first.bounding_box()
-    n = len(tab.events)
-    page.mouse.click(bb["x"] + fx * bb["width"], bb["y"] + fy * bb["height"])
-    wait_event(tab, "pixel", after=n)
+    # The test predicts where the pixel appears from the camera the browser last reported; on a
+    # loaded machine that report can lag the refitted view by a frame, so the prediction (not the
+    # product: a click is mapped from its own ray) may be off. Predict again from the next report.
+    for attempt in range(3):
+        fx, fy = tour.picture_to_canvas((u + 0.5) * s - 0.5 + x0, (v + 0.5) * s - 0.5 + y0)
+        bb = page.locator("canvas").first.bounding_box()
+        n, reports = len(tab.events), tab.camera_reports
+        page.mouse.click(bb["x"] + fx * bb["width"], bb["y"] + fy * bb["height"])
+        wait_event(tab, "pixel", after=n)
+        if np.allclose(tab.pixel, (u, v), atol=1.5):
+            break
+        page.mouse.move(bb["x"] + bb["width"] / 2, bb["y"] + bb["height"] / 2)
+        page.set_viewport_size({"width": page.viewport_size["width"] + 1 - 2 * (attempt % 2),
+                                "height": page.viewport_size["height"]})     # a resize makes the browser report
+        wait_for(lambda: tab.camera_reports > reports, what="a fresh camera report")
+        settled(tab)
     assert np.allclose(tab.pixel, (u, v), atol=1.5)
     wait_event(tab, "explained", after=n, timeout=120)
     # presenter mode, then leave the tour: the plain view comes back
