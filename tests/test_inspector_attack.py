@@ -11,29 +11,14 @@ and the timings are measured by bench/stress.py (`make stress`), not asserted he
 import os
 import re
 import threading
-import time
 from pathlib import Path
 
-import pytest
 
+from browserkit import browser, wait_for  # noqa: F401 (a fixture)
 from conftest import ROOT, SAMPLE_SETS
 from bench.stress import OWN_PAGE, http_status, outside_paths
 
 SET = SAMPLE_SETS / "tabletop_ball"
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
-
-
-def wait_for(pred, timeout=120.0, what="condition"):
-    """Poll a state the server sets (not a delay)."""
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if pred():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def inspector(tmp: Path, cache: Path, **kw):
@@ -42,16 +27,6 @@ def inspector(tmp: Path, cache: Path, **kw):
     from pipeline.loading import load_gts, load_set
     ps = load_set(SET, 160)
     return Inspector(ps, load_gts(ps), PairCache(cache), tmp / "out", port=0, max_side=160, **kw)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-    assert Path(CHROMIUM).exists(), "Debian's chromium is needed (make test installs it)"
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
-        yield b
-        b.close()
 
 
 def open_tab(browser, app):
