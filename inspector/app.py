@@ -48,6 +48,7 @@ from . import geometry_view as gv
 from .memory import limit_malloc_arenas
 from .tour import Tour
 from .gallery_view import GalleryView
+from .side_by_side import PresetPanels
 from .model import (Score, SetBest, SetModel, Settings, TermCache, gt_at_working, score, set_best_threshold,
                     usable_supports)
 
@@ -333,11 +334,13 @@ class Session:
         self._versions = {"sweep": 0, "pixel": 0}         # what the slow views were last asked to show
         self.tour: Tour | None = None                       # the guided tour, prepared links (tour.py)
         self.gallery: GalleryView | None = None             # the Gallery tab (gallery_view.py)
+        self.presets: PresetPanels | None = None            # the Presets tab (side_by_side.py)
         self._build()
         self.fast = Redrawer(f"tab{client.client_id}-fast", self._draw_fast)
         self.slow = Redrawer(f"tab{client.client_id}-slow", self._draw_slow)
         self.tour = Tour(self)
         self.gallery = GalleryView(self)
+        self.presets = PresetPanels(self)
         self.geo_draw = Redrawer(f"tab{client.client_id}-geometry", self._draw_geometry)
 
     # ------------------------------------------------------------------ GUI
@@ -493,6 +496,8 @@ class Session:
         self.slow.stop()
         if self.gallery is not None:
             self.gallery.close()
+        if self.presets is not None:
+            self.presets.close()
         self.geo_draw.stop()
 
     # ------------------------------------------------------------------ state changes (callbacks)
@@ -502,6 +507,8 @@ class Session:
             self.tour.on_event(what, value)
         if self.gallery is not None:
             self.gallery.on_event(what, value)
+        if self.presets is not None:
+            self.presets.on_event(what, value)
 
     def _current_settings(self) -> Settings:
         s = self.settings

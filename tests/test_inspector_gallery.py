@@ -170,3 +170,70 @@ def test_gallery_without_ground_truth_lists_uncertain_regions(browser, cache_dir
             np.testing.assert_array_equal(tab.report.xy, list(e.region.pixel))
     finally:
         app.close()
+
+
+# ----------------------------------------------------------------------------- presets side by side
+def presets_state(tab):
+    return {p: v[3] for p, v in tab.presets.shown.items()}
+
+
+def test_presets_side_by_side_stay_in_sync(browser, cache_dir):
+    from inspector.side_by_side import PRESETS_SHOWN
+    app = make_app(cache_dir, True, "out-presets")
+    try:
+        page, tab = open_tab(browser, app)
+        pp = tab.presets
+        pp.draw.wait_idle(120)
+        wait_for(lambda: presets_state(tab).get("default") == "map", 120, "the default panel")
+        ref = tab.settings.ref
+        page.get_by_role("tab", name="Presets").click()
+        for p in ("paper", "peer-homography"):             # not run yet: the panel says so and offers it
+            assert presets_state(tab)[p] == "not run"
+            page.get_by_text(f"{p}: not computed yet", exact=False).first.wait_for(timeout=10_000)
+        for p in ("paper", "peer-homography"):             # one run at a time (the button waits)
+            n = len(tab.events)
+            page.get_by_role("button", name=f"Compute {p}", exact=True).click()
+            wait_event(tab, "presets compute", lambda v, p=p: v == p, after=n)
+            wait_for(lambda p=p: presets_state(tab).get(p) == "map", 600, f"the {p} map")
+        pp.draw.wait_idle(120)
+        for p in PRESETS_SHOWN:                              # each with its Jaccard (ground truth)
+            page.get_by_text(re.compile(rf"^{re.escape(p)}: threshold .* Jaccard \d\.\d{{3}}")).first.wait_for(
+                timeout=10_000)
+        assert all(app.models[p].error is None for p in PRESETS_SHOWN)
+
+        # a click on the photo: the same pixel marked in all three panels
+        box = page.locator("canvas").first.bounding_box()
+        n = len(tab.events)
+        page.mouse.click(box["x"] + box["width"] * 0.45, box["y"] + box["height"] * 0.55)
+        wait_event(tab, "presets shown", lambda v: v[1] is not None, after=n)
+        settled(tab)
+        pp.draw.wait_idle(120)
+        px = (float(tab.pixel[0]), float(tab.pixel[1]))
+        assert all(v[0] == ref and v[1] == px for v in pp.shown.values())
+        page.get_by_text(f"point ({px[0]:.0f}, {px[1]:.0f}) marked in all three").wait_for(timeout=10_000)
+
+        # zoomed: the same window around the same pixel in all three
+        n = len(tab.events)
+        page.get_by_label("Zoom on the clicked point").check()
+        wait_event(tab, "presets shown", after=n)
+        pp.draw.wait_idle(120)
+        windows = {v[2] for v in pp.shown.values()}
+        assert len(windows) == 1 and None not in windows
+        x0, y0, x1, y1 = windows.pop()
+        assert x0 <= px[0] < x1 and y0 <= px[1] < y1
+
+        # a gallery entry opened: its pixel in all three
+        wait_for(lambda: gallery_ready(tab), 300, "the gallery")
+        e = tab.gallery.gallery.entries[0]
+        page.get_by_role("tab", name="Gallery").click()
+        n = len(tab.events)
+        from inspector.gallery_view import entry_label
+        page.get_by_role("button", name=entry_label(e)).click()
+        want = (float(e.region.pixel[0]), float(e.region.pixel[1]))
+        wait_event(tab, "presets shown", lambda v: v[1] == want, after=n)
+        pp.draw.wait_idle(120)
+        assert all(v[1] == want for v in pp.shown.values())
+        page.get_by_role("tab", name="Presets").click()
+        page.screenshot(path=str(cache_dir / "presets.png"))
+    finally:
+        app.close()
