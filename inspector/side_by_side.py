@@ -172,7 +172,7 @@ class PresetPanels:
             base = heat_overlay(photo.rgb, dyn, dyn > t, 0.55)
             gtw = app.gts_working.get(app.stems[ref])
             if gtw is not None:
-                contours, _ = cv2.findContours((gtw == 255).astype(np.uint8), cv2.RETR_EXTERNAL,
+                contours, _ = cv2.findContours(gtw.astype(np.uint8), cv2.RETR_EXTERNAL,
                                                cv2.CHAIN_APPROX_SIMPLE)
                 cv2.drawContours(base, contours, -1, C_GT, max(1, round(max(base.shape[:2]) / 400)), cv2.LINE_AA)
             gt = app.gts.get(app.stems[ref])
