@@ -236,6 +236,7 @@ def support_channels(rgb_ref: np.ndarray, rgb_sup: np.ndarray, g: PairGeometry, 
 
 # ----------------------------------------------------------------------------- workers
 _W: dict = {}
+_INLINE = threading.Lock()      # inline runs (one worker) take turns with the per-process state _W
 
 
 def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
@@ -338,8 +339,6 @@ class _Runner:
         self.workers = workers
         self.pool = None
         self.args = (rgbs, params)
-        if workers <= 1:
-            _init_worker(rgbs, params)
 
     def _ensure_pool(self) -> None:
         if self.pool is None:
@@ -354,7 +353,12 @@ class _Runner:
             return
         if self.workers <= 1:
             for a in arg_list:
-                on_done(fn(*a))
+                with _INLINE:            # another inline run (a viewer's second preset) shares this process
+                    if _W.get("owner") is not self:
+                        _init_worker(*self.args)
+                        _W["owner"] = self
+                    result = fn(*a)
+                on_done(result)
             return
         from concurrent.futures.process import BrokenProcessPool
         pending = dict(enumerate(arg_list))
@@ -387,15 +391,31 @@ class _Runner:
                 raise
 
     def close(self, kill: bool = False) -> None:
-        if self.pool is not None:
-            if kill:
-                for proc in list(getattr(self.pool, "_processes", {}).values()):
-                    try:
-                        proc.terminate()
-                    except Exception:
-                        pass
+        if self.pool is None:
+            return
+        if not kill:
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.pool = None
+            return
+        procs = list((getattr(self.pool, "_processes", None) or {}).values())
+        for proc in procs:
+            try:
+                proc.terminate()
+            except Exception:
+                pass
+        # Do not wait on the pool's own shutdown handshake after killing its workers (its
+        # management thread may wait on a result that never comes); wait on the processes, and
+        # kill what a SIGTERM did not stop: no orphan outlives the run.
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            proc.join(timeout=5)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout=5)
+        manager = getattr(self.pool, "_executor_manager_thread", None)
+        if manager is not None:
+            manager.join(timeout=5)
+        self.pool = None
 
 
 class SchedulerError(RuntimeError):

@@ -75,7 +75,7 @@ def test_ctrl_c_stops_within_two_seconds_and_leaves_nothing(tmp_path, order):
         assert time.time() - t0 < 600
         time.sleep(0.05)
     p.send_signal(signal.SIGINT)
-    assert p.wait(timeout=30) == 130     # the 2 s stop is measured by bench/stress.py, not asserted here
+    assert p.wait(timeout=120) == 130    # the 2 s stop is measured by bench/stress.py, not asserted here
     assert "Traceback" not in p.stderr.read()
     left = subprocess.run(["pgrep", "-f", f"{tmp_path}"], capture_output=True, text=True).stdout.strip()
     assert left == ""                                    # no orphan worker
