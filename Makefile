@@ -11,7 +11,8 @@ SET    ?= sample_sets/tabletop_ball
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[test]"
+	# setuptools' notice on every lenient editable install (folders named like the package) is not ours to act on
+	PYTHONWARNINGS="ignore:Editable installation" $(PY) -m pip install -q -e ".[test]"
 	touch $@
 
 setup: $(VENV)/.installed
