@@ -12,7 +12,7 @@ import multiprocessing as mp
 import os
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
@@ -369,13 +369,19 @@ class _Runner:
             try:
                 for k, a in pending.items():
                     futures[self.pool.submit(fn, *a)] = k
-                for fut in as_completed(futures):
-                    result = fut.result()
-                    # let go of the finished future at once: it holds its result (a pair's bytes,
-                    # ~8 MB), and a 100-photo set has 800 of them (the main process grew past 3 GB)
-                    del pending[futures.pop(fut)]
-                    on_done(result)
-                    del result
+                while futures:
+                    # Wake up twice a second even when nothing finishes: Ctrl-C's signal may reach
+                    # another thread of this process, and Python raises KeyboardInterrupt only when
+                    # the main thread runs (an endless wait on a hung pair never stopped, under load).
+                    done, _ = wait(list(futures), timeout=0.5, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        result = fut.result()
+                        # let go of the finished future at once: it holds its result (a pair's
+                        # bytes, ~8 MB), and a 100-photo set has 800 of them (the main process grew
+                        # past 3 GB)
+                        del pending[futures.pop(fut)]
+                        on_done(result)
+                        del result
             except BrokenProcessPool:
                 self.close(kill=True)
                 for k in pending:
@@ -398,6 +404,12 @@ class _Runner:
             self.pool = None
             return
         procs = list((getattr(self.pool, "_processes", None) or {}).values())
+        # The pool's feeder thread may be blocked writing a task into the pipe of a worker that is
+        # about to die; joining it (the pool's manager does, and so does the interpreter's exit)
+        # would then wait forever (a stop that never came, seen under load). Let it go unjoined.
+        call_queue = getattr(self.pool, "_call_queue", None)
+        if call_queue is not None:
+            call_queue.cancel_join_thread()
         for proc in procs:
             try:
                 proc.terminate()
