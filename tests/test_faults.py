@@ -19,7 +19,10 @@ def detect(tmp_path, env_extra, *extra, cache=None, out="out"):
     env = dict(os.environ, **env_extra)
     cmd = [sys.executable, "-m", "crowdcam", "detect", str(SET), "--out", str(tmp_path / out), "--max-side", "160",
            "--preset", "paper", "--workers", "2", "--quiet", "--cache-dir", str(cache or tmp_path / "cache"), *extra]
-    return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C as a terminal delivers it: a suite started in the background by a non-interactive
+    # shell inherits SIGINT ignored, and so would the run (it then never sees the signal)
+    return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 import pytest
