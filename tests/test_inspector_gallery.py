@@ -17,23 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from browserkit import browser, wait_event, wait_for  # noqa: F401 (a fixture)
 from conftest import SAMPLE_SETS
-
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
-
-
-def wait_for(pred, timeout=60.0, what="condition"):
-    """Poll a condition the server sets (an explicit state, not a delay)."""
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if pred():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
-
 
 def settled(session):
     for _ in range(1000):
@@ -41,12 +26,6 @@ def settled(session):
         if session.slow.idle() and session.fast.idle() and session.gallery.draw.idle():
             return
     raise AssertionError("the tab never settled")
-
-
-def wait_event(session, name, pred=lambda v: True, after=0, timeout=120.0):
-    def found():
-        return any(e[0] == name and pred(e[1]) for e in session.events[after:])
-    wait_for(found, timeout, f"event {name!r}")
 
 
 def gallery_ready(tab):
@@ -66,16 +45,6 @@ def make_app(cache_dir, with_gt: bool, sub: str):
     ps = load_set(SAMPLE_SETS / "tabletop_ball", 256)
     return Inspector(ps, load_gts(ps) if with_gt else {}, PairCache(cache_dir / "cache"), cache_dir / sub,
                      port=0, max_side=256, workers=1)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-    assert Path(CHROMIUM).exists(), "Debian's chromium is needed (make test installs it)"
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
-        yield b
-        b.close()
 
 
 def open_tab(browser, app, viewport=(1366, 768)):
