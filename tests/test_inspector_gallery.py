@@ -20,6 +20,7 @@ import pytest
 from browserkit import browser, wait_event, wait_for  # noqa: F401 (a fixture)
 from conftest import SAMPLE_SETS
 
+
 def settled(session):
     for _ in range(1000):
         assert session.slow.wait_idle(120) and session.fast.wait_idle(60) and session.gallery.draw.wait_idle(120)
