@@ -306,6 +306,7 @@ class Session:
         self.large: int | None = None                       # the support shown large, or None: the map
         self.dyn: np.ndarray | None = None                  # the map on screen
         self.report: compose.PixelReport | None = None
+        self.pixel_parts: tuple | None = None               # (report, what the Pixel tab shows of it)
         self.score: Score | None = None
         self.set_best: SetBest | None = None
         self._set_best_key_done = None
@@ -1201,6 +1202,7 @@ class Session:
                 "evidence": compose.evidence_markdown(report, self.app.stems)}
 
     def _publish_pixel(self, report: compose.PixelReport, parts: dict) -> None:
+        self.pixel_parts = (report, parts)          # the Gallery tab shows the same under an opened entry
         self.md_pixel.content = parts["verdict"]
         options = [MAP_OPTION] + [f"{self.app.stems[e.sup]} · P {v:.2f}" for e, v in zip(report.evidence,
                                                                                            report.values)]

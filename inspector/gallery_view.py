@@ -6,7 +6,13 @@ same function `crowdcam report` calls: with ground truth the missed movers (M) a
 regions lit up (F), without it the most uncertain regions (U); each with its area, its crop
 (photo and map, from crowdcam/report.py's `crop_picture`) and its diagnoses, strongest first.
 An entry's button explains its pixel exactly as a click on the photo does (the session's own
-pixel path), and the verdict is repeated under the buttons (the evidence is in the Pixel tab).
+pixel path), and what the Pixel tab then shows of that pixel (the verdict, each support's vote,
+the fusion table with every support's P(x|I_s), the best candidates' similarities and each
+support's picture with its line and best candidates) appears under the entry itself: viser 1.1
+cannot select a tab from the server (a tab group's and a panel's props are their tabs' labels,
+icons and containers; the selected tab is the browser's own state), so the explanation comes to
+the Gallery tab instead of the Gallery tab sending the user to the Pixel tab. It is the Pixel
+tab's own content (Session.pixel_parts, published with the report), not a second computation.
 
 The gallery is computed on a redrawer of its own, after the reference's pairs have finished, for
 the preset's own map (its pipeline settings) at the tab's threshold; meanwhile the tab says
@@ -19,6 +25,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,12 +37,16 @@ COMPUTING = "computing…"
 MAX_PER_KIND = 5                       # as `crowdcam report --max-entries` (its default)
 SLOTS = 2 * MAX_PER_KIND               # M and F with ground truth; U alone without
 CROP_SIDE = 150                        # each half of an entry's picture (photo | map), px
+BLANK = np.full((8, 8, 3), 255, np.uint8)
 KIND_LETTER = {MISSED: "M", FALSE_ALARM: "F", UNCERTAIN: "U"}
 HELP = ("The worst regions of this reference's map, ranked by area (with ground truth: **M** missed movers, "
         "**F** static regions lit up; without: **U** the most uncertain regions, by summed uncertainty), each "
         "with a first diagnosis from what the run already computed (as `crowdcam report`). The preset's own map "
-        "at this tab's threshold. **Click an entry** to explain its pixel (the main view marks it; the "
-        "**Pixel** tab holds each support's evidence).")
+        "at this tab's threshold. **Click an entry** to explain its pixel: the main view marks it, and what "
+        "every support said there (its P(x|I_s), its vote, its best candidates) appears under the entry, as "
+        "in the **Pixel** tab.")
+OTHER_POINT = ("*Another point is explained now (a click on the photo). Click the entry again to see its "
+               "evidence here.*")
 
 
 def entry_label(e) -> str:
@@ -56,6 +67,26 @@ def entry_markdown(e) -> str:
     return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class Slot:
+    """One entry's widgets: its button, diagnoses and crop; under them, once it is opened, its
+    pixel's evidence as the Pixel tab shows it (verdict, vote chart, tables, support pictures
+    with their legend)."""
+
+    btn: object
+    md: object
+    img: object
+    ev_verdict: object
+    ev_chart: object
+    ev_tables: object
+    ev_tiles: object
+    ev_legend: object
+
+    @property
+    def evidence(self) -> tuple:
+        return (self.ev_verdict, self.ev_chart, self.ev_tables, self.ev_tiles, self.ev_legend)
+
+
 class GalleryView:
     """The Gallery tab of one session. key: (preset, reference, threshold) of what is shown;
     gallery: the Gallery shown (None while computing); compute_ms: server-side times of the
@@ -74,14 +105,19 @@ class GalleryView:
         with session.panel.add_tab("Gallery"):
             self.md_head = gui.add_markdown(f"Failure gallery: {COMPUTING}")
             self.md_explained = gui.add_markdown("")
-            self.slots = []
+            self.slots: list[Slot] = []
             for k in range(SLOTS):
                 btn = gui.add_button(f"entry {k + 1}", visible=False, hint="explain this region's pixel (as a click "
-                                                                          "on the photo there)")
+                                                                          "on the photo there): what every support "
+                                                                          "said there appears under the entry")
                 md = gui.add_markdown("", visible=False)
                 img = gui.add_image(render.message(""), format="jpeg", jpeg_quality=85, visible=False)
+                slot = Slot(btn, md, img, gui.add_markdown("", visible=False),
+                            gui.add_image(BLANK, format="png", visible=False), gui.add_markdown("", visible=False),
+                            gui.add_image(BLANK, format="jpeg", jpeg_quality=85, visible=False),
+                            gui.add_image(BLANK, format="png", visible=False))
                 btn.on_click(lambda _ev, k=k: self.open(k))
-                self.slots.append((btn, md, img))
+                self.slots.append(slot)
             with gui.add_folder("About the gallery", expand_by_default=False):
                 gui.add_markdown(HELP)
         self.draw = Redrawer(f"tab{session.client.client_id}-gallery", self._build)
@@ -99,6 +135,8 @@ class GalleryView:
             self.request()
         elif what == "explained":
             self._show_explained()
+        elif what == "pixel":
+            self._pixel_moved()
 
     def request(self) -> None:
         want = self.state()
@@ -121,8 +159,16 @@ class GalleryView:
 
     def _hide_entries(self) -> None:
         self.gallery, self.key = None, None
-        for btn, md, img in self.slots:
-            btn.visible = md.visible = img.visible = False
+        self._hide_evidence()
+        for slot in self.slots:
+            slot.btn.visible = slot.md.visible = slot.img.visible = False
+
+    def _hide_evidence(self) -> None:
+        """No entry shows an explanation (call under the session's _pub)."""
+        self.opened = None
+        for slot in self.slots:
+            for h in slot.evidence:
+                h.visible = False
 
     # ------------------------------------------------------------------ computing (own thread)
     def _build(self, _what: set[str]) -> None:
@@ -164,15 +210,17 @@ class GalleryView:
             self.gallery, self.key = gallery, want
             self.compute_ms = (self.compute_ms + [ms])[-50:]
             self.md_head.content = self._head(gallery, stem)
-            for k, (btn, md, img) in enumerate(self.slots):
+            self._hide_evidence()                               # the entries may be others now
+            self.md_explained.content = ""
+            for k, slot in enumerate(self.slots):
                 if k < len(gallery.entries):
                     e = gallery.entries[k]
-                    btn.label = entry_label(e)
-                    md.content = entry_markdown(e)
-                    img.image = pictures[k]
-                    btn.visible = md.visible = img.visible = True
+                    slot.btn.label = entry_label(e)
+                    slot.md.content = entry_markdown(e)
+                    slot.img.image = pictures[k]
+                    slot.btn.visible = slot.md.visible = slot.img.visible = True
                 else:
-                    btn.visible = md.visible = img.visible = False
+                    slot.btn.visible = slot.md.visible = slot.img.visible = False
         s._record("gallery", (stem, len(gallery.entries)))
 
     def _head(self, g: Gallery, stem: str) -> str:
@@ -183,7 +231,7 @@ class GalleryView:
             found = f"no ground truth: {n.get(UNCERTAIN, 0)} uncertain regions"
         shown = f"the {len(g.entries)} worst shown" if g.entries else "nothing to show"
         return (f"**Failure gallery of {stem}** at the threshold {g.threshold:.3f}: {found} ({shown}). "
-                "Click an entry to explain its pixel.")
+                "Click an entry to explain its pixel: each support's evidence appears under it.")
 
     def _publish_text(self, want: tuple, text: str) -> None:
         with self.s._pub:
@@ -193,7 +241,8 @@ class GalleryView:
 
     # ------------------------------------------------------------------ opening an entry
     def open(self, k: int) -> None:
-        """Explain entry k's pixel, as a click on the photo there would."""
+        """Explain entry k's pixel, as a click on the photo there would; its evidence follows
+        under the entry when the session has explained it (_show_explained)."""
         s = self.s
         g, key = self.gallery, self.key
         if g is None or key is None or k >= len(g.entries) or key[:2] != self.state()[:2]:
@@ -202,23 +251,60 @@ class GalleryView:
         xy = np.array(e.region.pixel, np.float64)
         if s.large is not None:                 # a support shown large: back to the map, where the pixel shows
             s.dd_large.value = s.dd_large.options[0]
-        self.opened = (key, k, (float(xy[0]), float(xy[1])))
+        name = f"{KIND_LETTER[e.region.kind]}{e.region.rank}"
         with s._pub:
-            self.md_explained.content = (f"**{KIND_LETTER[e.region.kind]}{e.region.rank}** opened: pixel "
-                                         f"({xy[0]:.0f}, {xy[1]:.0f}), {COMPUTING}")
-        s._record("gallery open", (s.app.stems[key[1]], f"{KIND_LETTER[e.region.kind]}{e.region.rank}",
-                                   (int(xy[0]), int(xy[1]))))
+            self._hide_evidence()
+            self.opened = (key, k, (float(xy[0]), float(xy[1])))
+            slot = self.slots[k]
+            slot.ev_verdict.content = f"**{name} opened**: pixel ({xy[0]:.0f}, {xy[1]:.0f}), {COMPUTING}"
+            slot.ev_verdict.visible = True
+            self.md_explained.content = f"**{name}** opened: its pixel's evidence is under the entry."
+        s._record("gallery open", (s.app.stems[key[1]], name, (int(xy[0]), int(xy[1]))))
         s._set_pixel(xy)                        # the path a click on the photo takes (either view)
 
-    def _show_explained(self) -> None:
+    def _opened_report(self):
+        """The session's explanation of the opened entry's pixel, as the Pixel tab shows it:
+        (slot, entry name, report, parts), or None when the session explains something else."""
         s, op = self.s, self.opened
-        rep = s.report
-        if op is None or rep is None or rep.ref != s.settings.ref or s.pixel is None or \
+        if op is None or self.gallery is None or op[0] != self.key or op[1] >= len(self.gallery.entries):
+            return None
+        rep, pp = s.report, s.pixel_parts
+        if rep is None or pp is None or pp[0] is not rep or rep.ref != s.settings.ref or s.pixel is None or \
                 not np.array_equal(rep.xy, np.array(op[2])) or not np.array_equal(s.pixel, rep.xy):
-            return
-        e = self.gallery.entries[op[1]] if self.gallery is not None and op[1] < len(self.gallery.entries) else None
-        name = f"{KIND_LETTER[e.region.kind]}{e.region.rank}: " if e is not None else ""
-        text = (name + compose.verdict_markdown(rep, s.app.stems[rep.ref], s.settings.threshold) +
-                " Each support's evidence: the **Pixel** tab.")
+            return None
+        e = self.gallery.entries[op[1]]
+        return self.slots[op[1]], f"{KIND_LETTER[e.region.kind]}{e.region.rank}", rep, pp[1]
+
+    def _show_explained(self) -> None:
+        """The session explained a pixel: when it is the opened entry's, its evidence under the
+        entry (the Pixel tab's own parts: verdict, vote chart, fusion and evidence tables, support
+        pictures and their legend)."""
+        s = self.s
         with s._pub:
-            self.md_explained.content = text
+            found = self._opened_report()
+            if found is None:
+                return
+            slot, name, rep, parts = found
+            slot.ev_verdict.content = f"**{name}**: " + parts["verdict"]
+            slot.ev_chart.image = parts["chart"]
+            slot.ev_tables.content = "\n\n".join(t for t in (parts["fusion"], parts["evidence"]) if t)
+            slot.ev_tiles.image = parts["tiles"]
+            slot.ev_legend.image = parts["legend"]
+            for h in slot.evidence:
+                h.visible = True
+            self.md_explained.content = (f"**{name}** opened: P_dynamic **{rep.dynamic:.2f}** at its pixel; what "
+                                         "every support said there is under the entry.")
+        s._record("gallery explained", (name, tuple(int(v) for v in rep.xy)))
+
+    def _pixel_moved(self) -> None:
+        """Another point is being explained: the opened entry's evidence would go stale."""
+        s, op = self.s, self.opened
+        if op is None or s.pixel is None or np.array_equal(s.pixel, np.array(op[2])):
+            return
+        with s._pub:
+            slot = self.slots[op[1]]
+            for h in slot.evidence[1:]:
+                h.visible = False
+            slot.ev_verdict.content = OTHER_POINT
+            self.opened = None
+            self.md_explained.content = ""

@@ -3,9 +3,11 @@
 Debian's Chromium driven by Playwright; the inspector runs in this process, so the test reads
 what the server did (the session's recorded events and its gallery). It opens the Gallery tab,
 finds the reference's ranked regions (pipeline.gallery.build_gallery's), opens one and finds its
-explanation: the session's pixel and pixel report are the entry's, in the Gallery tab and in the
-Pixel tab. Another reference replaces the gallery (never a stale one); without ground truth the
-gallery lists uncertain regions.
+explanation one click away: the session's pixel and pixel report are the entry's, and what every
+support said there (the Pixel tab's own verdict, vote chart, tables and pictures) is under the
+entry in the Gallery tab, seen there without leaving it; another entry takes it over, and a click
+elsewhere on the photo says it is no longer shown. Another reference replaces the gallery (never
+a stale one); without ground truth the gallery lists uncertain regions.
 
 No test sleeps to wait for a state: they wait for recorded events and the redrawers' idle events.
 """
@@ -64,7 +66,7 @@ def open_tab(browser, app, viewport=(1366, 768)):
 
 
 def test_gallery_entry_opens_its_explanation(browser, cache_dir):
-    from inspector.gallery_view import entry_label
+    from inspector.gallery_view import KIND_LETTER, entry_label
     from pipeline.gallery import FALSE_ALARM, MISSED
     app = make_app(cache_dir, True, "out")
     try:
@@ -98,12 +100,51 @@ def test_gallery_entry_opens_its_explanation(browser, cache_dir):
         rep = tab.report
         assert rep is not None and rep.ref == ref
         np.testing.assert_array_equal(rep.xy, [x, y])
-        # the explanation in the Gallery tab, then each support's evidence in the Pixel tab
-        page.get_by_text(re.compile(rf"Pixel \({x}, {y}\)\s*of {stem}: P_dynamic")).locator("visible=true").first.wait_for(timeout=10_000)
-        assert f"{rep.dynamic:.2f}" in tab.gallery.md_explained.content
-        page.get_by_role("tab", name="Pixel").click()
-        page.get_by_text(f"{rep.dynamic:.2f}", exact=True).first.wait_for(timeout=10_000)
+        # the explanation under the entry, in the Gallery tab: the Pixel tab's own content for
+        # the session's report (published with it, not computed again), every support in it
+        wait_event(tab, "gallery explained", lambda v: v[1] == (x, y), after=n)
         assert len(rep.evidence) > 0
+        report, parts = tab.pixel_parts
+        assert report is rep
+        slot = tab.gallery.slots[0]
+        assert all(h.visible for h in slot.evidence)
+        assert not any(h.visible for other in tab.gallery.slots[1:] for h in other.evidence)
+        assert slot.ev_verdict.content.endswith(tab.md_pixel.content)
+        assert tab.md_fusion.content in slot.ev_tables.content and tab.md_evidence.content in slot.ev_tables.content
+        assert np.array_equal(slot.ev_chart.image, tab.img_fusion.image)
+        assert np.array_equal(slot.ev_tiles.image, tab.img_evidence.image)
+        assert np.array_equal(slot.ev_legend.image, tab.img_lines.image)
+        for e_ in rep.evidence:                      # each support's P(x|I_s) row, in the tables
+            assert f"| {app.stems[e_.sup]} (" in slot.ev_tables.content
+        # seen without leaving the Gallery tab (the Pixel tab, which says the same, is hidden)
+        verdict = re.compile(rf"{KIND_LETTER[e.region.kind]}{e.region.rank}: Pixel \({x}, {y}\)\s*of {stem}: P_dynamic {rep.dynamic:.2f}")
+        page.get_by_text(verdict).locator("visible=true").first.wait_for(timeout=10_000)
+        first_sup = app.stems[rep.evidence[0].sup]
+        page.get_by_role("cell", name=re.compile(rf"^{first_sup} \(")).locator("visible=true").first.wait_for(
+            timeout=10_000)
+        page.screenshot(path=str(cache_dir / "gallery_opened.png"))
+
+        # another entry takes the explanation over
+        if len(g.entries) > 1:
+            e2 = g.entries[1]
+            n = len(tab.events)
+            page.get_by_role("button", name=entry_label(e2)).click()
+            wait_event(tab, "gallery explained", lambda v: v[1] == tuple(e2.region.pixel), after=n)
+            settled(tab)
+            assert all(h.visible for h in tab.gallery.slots[1].evidence)
+            assert not any(h.visible for h in slot.evidence)
+            np.testing.assert_array_equal(tab.report.xy, list(e2.region.pixel))
+            slot, (x, y) = tab.gallery.slots[1], e2.region.pixel
+
+        # a click elsewhere on the photo: the entry no longer claims to show its pixel
+        box = page.locator("canvas").first.bounding_box()
+        n = len(tab.events)
+        page.mouse.click(box["x"] + box["width"] * 0.45, box["y"] + box["height"] * 0.55)
+        wait_event(tab, "explained", after=n)
+        settled(tab)
+        if not np.array_equal(tab.pixel, [x, y]):
+            assert slot.ev_verdict.visible and "Another point is explained now" in slot.ev_verdict.content
+            assert not any(hd.visible for hd in slot.evidence[1:])
 
         # another reference: the old gallery goes at once, the new one is the new reference's
         other = next(i for i, s in enumerate(app.stems) if i != ref and s in app.gts)
