@@ -84,7 +84,7 @@ def support_mosaic(snap: SetResult, settings: Settings, terms: TermCache, stems:
         if (i, j) not in snap.pair_results:
             continue
         mp = terms.match_prob(snap, i, j, p)
-        kind = {"homography": "H", "peer": "H"}.get(snap.pair_results[(i, j)].kind, "F")
+        kind = {"homography": "H", "peer": "H"}.get(snap.kind(i, j), "F")      # without loading the pair
         # drawn as 1 - P so the colours read like the main map: blue = matched (static), red = no match
         tiles.append(render.label(render.fit(render.heat(1.0 - mp), TILE), stems[j], f"{kind} · match {mp.mean():.2f}",
                                   dim=j not in settings.supports))
@@ -269,7 +269,7 @@ def explain(snap: SetResult, settings: Settings, terms: TermCache, dyn: np.ndarr
     stems = stems or [ph.stem for ph in snap.photo_set.photos]
     u, v = int(round(xy[0])), int(round(xy[1]))
     sups = usable_supports(snap, settings)
-    evs = tuple(_peer_evidence(snap, i, j, xy) if snap.pair_results[(i, j)].kind == "peer"
+    evs = tuple(_peer_evidence(snap, i, j, xy) if snap.kind(i, j) == "peer"
                 else explain_pixel(snap, i, j, xy, sups) for j in sups)
     vals = tuple(float(terms.match_prob(snap, i, j, p)[v, u]) for j in sups)
     depth = tuple(float(m[v, u]) if (m := snap.depth_match_prob(i, j, sups, p)) is not None else float("nan")

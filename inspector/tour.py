@@ -259,7 +259,8 @@ class Tour:
     def _support(self, snap, sups: list[int]) -> int | None:
         if self.sup in sups:
             return self.sup
-        epi = [j for j in sups if snap.pair_results[(self.s.settings.ref, j)].kind == "epipolar"]
+        ref = self.s.settings.ref
+        epi = [j for j in sups if snap.kind(ref, j) == "epipolar"]      # without loading the pairs
         return (epi or sups or [None])[0]
 
     def picture(self, snap, img: np.ndarray, dyn: np.ndarray | None) -> np.ndarray:
