@@ -307,6 +307,7 @@ class Session:
         self.dyn: np.ndarray | None = None                  # the map on screen
         self.report: compose.PixelReport | None = None
         self.pixel_parts: tuple | None = None               # (report, what the Pixel tab shows of it)
+        self.sweep_shown: tuple | None = None               # (ref, SweepView, Jaccards, threshold) of the Sweep tab
         self.score: Score | None = None
         self.set_best: SetBest | None = None
         self._set_best_key_done = None
@@ -625,7 +626,8 @@ class Session:
             self.plot_sweep.scales = {"x": vu.Scale(time=False, range=(1.0, float(k))),
                                       "y": vu.Scale(range=(0.0, 1.05))}
             self.md_export.content = ""
-        self._fit_camera()
+        if self.view == "photo":            # the 3-D view keeps its viewpoint (same cameras, another reference)
+            self._fit_camera()
 
     def _support_list(self, ref: int) -> list[int]:
         m = self.app.model(self.settings.preset)
@@ -740,8 +742,25 @@ class Session:
             self._fit_camera()
         else:
             self.md_geo.content = f"Geometry: {COMPUTING}"
+            geo = self.geo
+            if geo is not None and geo.key[0] == self.settings.preset:    # drawn before: its viewpoint again
+                if self._geo_camera is not None and self._geo_camera[0] == geo.key:
+                    with self.client.atomic():
+                        self.client.camera.position, self.client.camera.look_at = self._geo_camera[1:]
+                        self.client.camera.up_direction = (0.0, -1.0, 0.0)
+                else:
+                    self._overview_camera()
             self.geo_draw.request("scene", "ray")
         self._record("view", view)
+
+    def set_view(self, view: str) -> None:
+        """Show the main view `view` ("photo" or "geometry") as the Main view control does (the
+        tour uses it: its step 1 shows the cameras in 3-D)."""
+        label = GEOMETRY_VIEW if view == "geometry" else PHOTO_VIEW
+        if self.dd_view.value != label:
+            self.dd_view.value = label          # fires _on_view
+        elif view != self.view:
+            self._on_view()
 
     def _overview_camera(self) -> None:
         if self.geo is None:
@@ -786,6 +805,8 @@ class Session:
         if self.geo is None or self.geo.key != key:
             self._build_geometry(snap, key)
         self._draw_geometry_pixel(snap)
+        if self.tour is not None:           # the tour's step 1 is this view: its picture is sent
+            self.tour.shown_3d()
 
     def _build_geometry(self, snap, key: tuple) -> None:
         cams, ref = snap.cameras, key[2]
@@ -897,11 +918,20 @@ class Session:
             return
         if not self._straighten(cam) and abs(aspect - self._fit_aspect) > 0.01 * self._fit_aspect:
             self._fit_camera()
+        if self.tour is not None:           # a tour step's picture is laid out for the canvas's shape
+            self.tour.on_canvas(aspect)
         self.camera_reports += 1
 
     def _straighten(self, cam) -> bool:
         pos, look = np.asarray(cam.position, np.float64), np.asarray(cam.look_at, np.float64)
         up = np.asarray(cam.up_direction, np.float64)
+        if abs(look[2]) > 1e-3:
+            # not a photo-view camera (pan and orbit keep look_at on the photo's plane, z = 0): a
+            # late report of the 3-D view's camera (the tour's step 1, the Geometry view) arriving
+            # after the switch back. Straightening it would keep its look_at, off the photo: refit.
+            self._fit_camera()
+            self._record("camera refitted", None)
+            return True
         f = look - pos
         dist = float(np.linalg.norm(f))
         if dist < 1e-9 or np.linalg.norm(up) < 1e-9:
@@ -986,8 +1016,8 @@ class Session:
             with self._pub:                 # the picture first, then its key and numbers
                 if epoch != self._epoch:
                     return
-                if self._show_scene(img):
-                    self._fit_camera()
+                if self._show_scene(img) and self.view == "photo":
+                    self._fit_camera()      # (the 3-D view keeps its own camera)
                 if self.tour is not None:
                     self.tour.shown()
                 self.main_ms = (self.main_ms + [1000 * (time.perf_counter() - t0)])[-50:]
@@ -1232,6 +1262,7 @@ class Session:
             if not self._publishable(epoch, "sweep", version):
                 return
             self.img_sweep.image = img
+            self.sweep_shown = (s.ref, view, [x.at_threshold for x in scores] if scores else None, s.threshold)
             if not view.maps:
                 self.md_sweep.content = "No support is ready for this reference yet."
             else:

@@ -14,6 +14,13 @@ button): it clicks Previous / Next, and up / down do nothing; either way the key
 the camera. A focused control keeps its key (app.KEYS_STAY_WITH_CONTROLS keeps it from the
 camera).
 
+Step 1 shows the photos where they were taken: when the preset has the set's cameras (the
+`default` preset's reconstruction, SetResult.cameras), the tour switches the main view to the
+session's Geometry (3-D) view (geometry_view.py; drawn by its own redrawer, which tells the tour
+when the step is on screen) and back to the photo view for steps 2-7; without cameras (`paper`,
+`peer-homography`) step 1 is the grid of photos, each captioned with what it is to the reference.
+Leaving the tour puts back the view the tab had before.
+
 Prepared links: viser does not tell the server the page's URL (its websocket request carries no
 query), so the same page script hands `location.search` to the server through a text field of
 the "Prepared link" folder (state.py has the format); "Link to this view" writes the link of the
@@ -28,6 +35,7 @@ import time
 
 import numpy as np
 
+from . import render
 from . import tour_views as tv
 from .model import score, usable_supports
 from .state import N_STEPS, PreparedState, from_query, to_query
@@ -37,6 +45,10 @@ START = "Take the guided tour"
 LINK_LABEL = "Open a link"
 MARKER_ID = "crowdcam-tour-on"
 TOUR_WIDTH = {False: 480, True: 600}
+TEXT_SCALE = {False: 1.0, True: 1.3}     # the type in the step pictures (presenter mode: larger)
+SOURCE_WORDS = {"reconstruction": "the set's reconstruction (all the cameras placed together; ours)",
+                "two-view": "this pair's own matches (as in the paper)",
+                "homography": "one homography (a shot from about the same spot, or a flat scene; ours)"}
 PRESENTER_CSS = """<style>
 :root { font-size: 125% !important; }
 .mantine-Paper-root p, .mantine-Paper-root li, .mantine-Paper-root td { font-size: 1.05rem !important;
@@ -86,6 +98,10 @@ class Tour:
         self.step_ms: list[float] = []
         self._t_step: float | None = None
         self._auto_pixel_ref: int | None = None        # the reference a default point was chosen for
+        self.in_3d = False                              # step 1 is shown in the Geometry (3-D) view
+        self._look_used: tv.Look | None = None          # how the last step picture was laid out
+        self._view_chosen: tuple | None = None          # (step, cameras known) the main view was chosen for
+        self._view_before: str | None = None            # the tab's main view before the tour
         self._sup_options: list[str] = []
         self._lock = threading.Lock()
         self.panel = None
@@ -117,6 +133,9 @@ class Tour:
             self.bg_step = gui.add_button_group("Step", [str(k) for k in range(1, N_STEPS + 1)],
                                                 hint="go to a step directly")
             self.md_live = gui.add_markdown("")
+            self.btn_best = gui.add_button("Use this photo's best threshold", visible=False,
+                                           hint="the threshold with the highest Jaccard for this photo (§4.2): "
+                                                "the mask and the score follow")
             self.img_side = gui.add_image(tv.busy_picture("").rgb, format="png", visible=False)
             self.dd_sup = gui.add_dropdown("Support shown", options=["…"], initial_value="…",
                                            hint="the support whose pair steps 2 to 5 show")
@@ -129,11 +148,13 @@ class Tour:
         self.dd_sup.on_update(lambda _ev: self._on_sup())
         self.cb_presenter.on_update(lambda _ev: self.set_presenter(bool(self.cb_presenter.value)))
         self.btn_stop.on_click(lambda _ev: self.stop())
+        self.btn_best.on_click(lambda _ev: self.s._use_best("photo"))
         self.panel.dock_left()
         self.panel.set_width(TOUR_WIDTH[self.presenter])
 
     def start(self, step: int = 1) -> None:
         if self.panel is None:
+            self._view_before = self.s.view
             self._build_panel()
             self.s.panel.minimize()
             self.btn_start.visible = False
@@ -146,8 +167,10 @@ class Tour:
         with self._lock:
             self.step = 0
             self.layout = None
+            self.in_3d = False
         self.panel.remove()
         self.panel = None
+        self.s.set_view(self._view_before or "photo")
         self.s.panel.expand()
         self.s.client.gui.main_panel.expand()
         self.btn_start.visible = True
@@ -166,6 +189,8 @@ class Tour:
             self.s.client.gui.main_panel.expand()
         if self.cb_presenter.value != on:
             self.cb_presenter.value = on
+        if self.step:
+            self.s.fast.request("main")          # the pictures' type follows
         self.s._record("presenter", on)
 
     def go(self, step: int) -> None:
@@ -176,6 +201,8 @@ class Tour:
         with self._lock:
             self.step = step
             self._t_step = time.perf_counter()
+            self.in_3d = False
+            self._view_chosen = None
         st = tv.STEPS[step - 1]
         self.md_title.content = f"### Step {step} of {N_STEPS}: {st.title}"
         self.md_text.content = st.text
@@ -183,8 +210,30 @@ class Tour:
         self.dd_sup.visible = 2 <= step <= 5
         self.md_live.content = "*computing…*"
         self.img_side.visible = False
+        self.btn_best.visible = False
         self.s.fast.request("main")
         self.s._record("tour", step)
+
+    def panel_width(self) -> int:
+        return TOUR_WIDTH[self.presenter]
+
+    def look(self) -> tv.Look:
+        """How the step's picture will be seen: the canvas's shape as the browser last reported
+        it (the step's panels go side by side or one above the other to fill it) and the type's
+        size (larger in presenter mode)."""
+        try:
+            aspect = float(self.s.client.camera.aspect)
+        except Exception:                   # no camera report from the browser yet
+            aspect = None
+        return tv.Look(aspect if aspect and np.isfinite(aspect) and aspect > 0 else None, TEXT_SCALE[self.presenter])
+
+    def on_canvas(self, aspect: float) -> None:
+        """The browser reported its canvas (a resize, presenter mode's panels): redraw the step
+        when its picture was laid out for another shape."""
+        used = self._look_used
+        if self.step and self.layout is not None and used is not None and \
+                (used.aspect is None or abs(aspect - used.aspect) > 0.03 * used.aspect):
+            self.s.fast.request("main")
 
     def _on_sup(self) -> None:
         v = self.dd_sup.value
@@ -250,10 +299,31 @@ class Tour:
     def shown(self) -> None:
         """The step's picture has been sent (called by the session right after)."""
         with self._lock:
-            if self._t_step is not None and self.layout is not None:
+            if self._t_step is not None and self.layout is not None and not self.in_3d:
                 self.step_ms.append(1000 * (time.perf_counter() - self._t_step))
                 self._t_step = None
                 self.s._record("tour shown", self.step)
+
+    def shown_3d(self) -> None:
+        """The Geometry view has been drawn (called by the session's geometry redrawer): step 1's
+        cameras, with their pictures, are sent."""
+        with self._lock:
+            if self._t_step is not None and self.in_3d and self.step == 1 and self.s.view == "geometry" and \
+                    self.s.geo is not None and self.s.geo.ref == self.s.settings.ref:
+                self.step_ms.append(1000 * (time.perf_counter() - self._t_step))
+                self._t_step = None
+                self.s._record("tour shown", self.step)
+
+    def _choose_view(self, snap) -> None:
+        """The main view of the step: step 1 in the Geometry (3-D) view when the preset has
+        cameras, the photo view otherwise (while step 1 waits for the geometry, and for steps
+        2-7). Chosen when a step is entered and again when whether there are cameras changes
+        (another preset); in between the user's own choice of view stands."""
+        state = (self.step, (tv.has_cameras(snap) if snap is not None else None) if self.step == 1 else None)
+        if self._view_chosen == state:
+            return
+        self._view_chosen = state
+        self.s.set_view("geometry" if state[1] else "photo")
 
     # ------------------------------------------------------------------ the step's picture
     def _support(self, snap, sups: list[int]) -> int | None:
@@ -287,46 +357,68 @@ class Tour:
             else None
         val = report.values[[e.sup for e in report.evidence].index(sup)] if ev is not None else None
         live, side = "", None
+        look = self.look()
+        self._choose_view(snap)
+        if step == 1 and s.view == "geometry" and tv.has_cameras(snap):
+            model = app.model(st.preset)
+            rel = [self._relation(model, snap, ref, j) for j in range(len(stems))]
+            live = tv.cameras_words(stems, ref, rel, snap.cameras)
+            with self._lock:
+                self.in_3d, self.layout = True, None
+                pending = self._t_step is not None
+            if pending:
+                s.geo_draw.request("scene", "ray")      # it tells the tour when the cameras are on screen
+            self.md_live.content = live
+            self.img_side.image = render.stack([tv.photos_strip(photos, stems, ref, rel, self.panel_width()),
+                                                tv.cameras_key(self.panel_width())], gap=10)
+            self.img_side.visible = True
+            return img                              # the photo view is hidden meanwhile
         if step == 1:
             model = app.model(st.preset)
             rel = [self._relation(model, snap, ref, j) for j in range(len(stems))]
-            pic = tv.photos_picture(photos, stems, ref, rel)
+            pic = tv.photos_picture(photos, stems, ref, rel, look=look)
             n_sup = len(snap.supports[ref]) if snap is not None else 0
             live = (f"Reference **{stems[ref]}** (change it in the controls on the right): {n_sup} supports of "
-                    f"{len(stems) - 1} other photos.")
+                    f"{len(stems) - 1} other photos. " + tv.no_cameras_words(snap, st.preset))
         elif snap is None or sup is None:
-            pic = tv.busy_picture("No support is ready for this reference yet: its pairs are being computed.")
+            pic = tv.busy_picture("No support is ready for this reference yet: its pairs are being computed.",
+                                  look=look)
         elif step == 2:
             g = snap.pairs[(ref, sup)]
-            pic = tv.pair_picture(photos[ref].rgb, photos[sup].rgb, g, pixel, stems[ref], stems[sup])
+            pic = tv.pair_picture(photos[ref].rgb, photos[sup].rgb, g, pixel, stems[ref], stems[sup], look)
+            source = SOURCE_WORDS.get(g.source, g.source)
             live = (f"Pair **{stems[ref]} → {stems[sup]}**: {len(g.inliers_ref)} matched features; its geometry "
-                    f"comes from {g.source}" + (f", lines sure to ±{g.uncertainty_px:.1f} px"
-                                                if np.isfinite(g.uncertainty_px) else "") + ".")
+                    f"comes from {source}" + (f", lines sure to ±{g.uncertainty_px:.1f} px"
+                                              if np.isfinite(g.uncertainty_px) else "") + ".")
         elif step == 3:
             pair = snap.pair_results[(ref, sup)]
-            pic = tv.strips_picture(photos[ref].rgb, photos[sup].rgb, pair, pixel, ev, stems[ref], stems[sup])
+            pic = tv.strips_picture(photos[ref].rgb, photos[sup].rgb, pair, pixel, ev, stems[ref], stems[sup], look)
             if pair.kind == "epipolar" and pair.strips is not None:
                 live = (f"{pair.strips.n_strips} strips in {pair.strips.n_fans} fans (each fan shifted by a third "
                         f"of a strip: every pixel is covered 9 times); patches {pair.strips.L} px long.")
         elif step == 4:
             if ev is None:
                 pic = tv.busy_picture("Finding the candidates of the clicked point…" if pixel is not None
-                                      else "Click a point (steps 2, 3, 5, 6 or 7) to see its candidates.")
+                                      else "Click a point (steps 2, 3, 5, 6 or 7) to see its candidates.", look=look)
             else:
-                pic = tv.candidates_picture(snap, report, ev, stems[sup])
+                pic = tv.candidates_picture(snap, report, ev, stems[sup], look=look)
                 if ev.patch is not None and len(ev.patch.cand_quads):
                     p = ev.patch
                     live = (f"{len(p.cand_quads)} candidates; best HOG similarity "
                             f"**{p.sim_hog[p.best_hog]:.2f}**, best colour **{p.sim_color[p.best_color]:.2f}**.")
         elif step == 5:
             mp = app.terms.match_prob(snap, ref, sup, st.params())
-            pic = tv.support_map_picture(photos[ref].rgb, photos[sup].rgb, mp, pixel, val, stems[ref], stems[sup])
+            pic = tv.support_map_picture(photos[ref].rgb, photos[sup].rgb, mp, pixel, val, stems[ref], stems[sup],
+                                         look=look)
             if val is not None:
                 says = "a match: says static" if val > 0.5 else ("no opinion" if val == 0.5 else
                                                                  "no match: says moving")
                 live = f"At the point, **{stems[sup]}** gives P(x|I_s) = **{val:.2f}** ({says})."
         elif step == 6:
-            pic = tv.fusion_picture(img, s.img_sweep.image, stems[ref], len(sups), s.img_key.image)
+            sw = s.sweep_shown
+            sweep = (sw[1], sw[2]) if sw is not None and sw[0] == ref else None
+            pic = tv.fusion_picture(img, sweep, stems[ref], len(sups), stems, dyn, st.threshold,
+                                    (s.layers.mask, bool(app.gts) and s.layers.gt), look=look)
             if report is not None:
                 live = s.md_pixel.content
                 side = s.img_fusion.image if s.img_fusion.visible else None
@@ -335,9 +427,14 @@ class Tour:
             sc = s.score if gt is not None else None
             if gt is not None and sc is None and dyn is not None:
                 sc = score(app.photo_set, ref, dyn, app.gts.get(stems[ref]), st.threshold)
-            pic = tv.result_picture(photos[ref].rgb, dyn, gt, st.threshold, pixel, sc, stems[ref])
+            pic = tv.result_picture(photos[ref].rgb, dyn, gt, st.threshold, pixel, sc, stems[ref], look=look)
             live = s.md_eval.content if gt is not None else "This photo has no ground truth."
-        self.layout = pic
+            offer = sc is not None and abs(sc.best_threshold - st.threshold) > 0.005
+            if offer:
+                self.btn_best.label = f"Use this photo's best threshold ({sc.best_threshold:.3f})"
+            self.btn_best.visible = offer
+        with self._lock:
+            self.layout, self.in_3d, self._look_used = pic, False, look
         if step >= 2 and pixel is not None and step not in (6,):
             live = f"Point ({pixel[0]:.0f}, {pixel[1]:.0f}). " + live
         self.md_live.content = live
@@ -353,7 +450,7 @@ class Tour:
         if state == "rejected":
             return f"rejected: {why}"
         if state == "unused":
-            return "not used (enough better supports)"
+            return "not used: enough better supports"
         g = snap.pairs.get((ref, j)) if snap is not None else None
         kind = "homography" if g is not None and g.H is not None else "epipolar"
         src = f" ({g.source})" if g is not None and g.source else ""

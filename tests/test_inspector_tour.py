@@ -4,8 +4,10 @@ Debian's Chromium driven by Playwright; the inspector runs in this process, so t
 what the server did (the session's recorded events, its tour's state and step pictures). It
 walks the whole tour with the arrow keys when nothing has the focus (the photo view never
 turns), checks that a focused control keeps its arrow keys, reaches a step directly and clicks
-a point on a step's picture; then opens a prepared link and finds its reference, supports,
-threshold, point and step, and gets the same link back from "Link to this view".
+a point on a step's picture; step 1 shows the set's cameras in 3-D (the session's Geometry view)
+where the preset has them and the photos side by side where it has none (`paper`); then opens a
+prepared link and finds its reference, supports, threshold, point and step, and gets the same
+link back from "Link to this view".
 
 No test sleeps to wait for a state: they wait for recorded events and the redrawers' idle
 events.
@@ -35,6 +37,22 @@ def test_prepared_state_round_trip():
     for bad in ("threshold=2", "step=9", "pixel=3", "colour=red", "presenter=yes", "ref="):
         with pytest.raises(ValueError):
             from_query(bad)
+
+
+# ----------------------------------------------------------------------------- the pictures' layout
+def test_step_pictures_fill_the_canvas():
+    """Two photos of a step go side by side on a wide canvas and one above the other on a narrow
+    one (presenter mode on a 1366x768 laptop leaves a canvas about as tall as wide), whichever
+    shows them larger; presenter mode's type is larger in the pictures too."""
+    from inspector import tour_views as tv
+    photo = (560, 996, 3)                                    # a 16:9 photo at the steps' height
+    assert not tv.one_above(photo, photo, photo, tv.Look(aspect=4.0))
+    assert tv.one_above(photo, photo, photo, tv.Look(aspect=0.93))
+    assert not tv.one_above(photo, photo, photo, tv.Look())           # canvas unknown: as before
+    a, b = np.zeros(photo, np.uint8), np.full(photo, 255, np.uint8)
+    assert tv.arrange(a, b, True).shape[:2] == (2 * 560 + 12, 996)
+    assert tv.arrange(a, b, False).shape[:2] == (560, 2 * 996 + 12)
+    assert tv.Look(text=1.3).t(18) == 23 and tv.Look().t(18) == 18
 
 
 # ----------------------------------------------------------------------------- the browser
@@ -75,15 +93,45 @@ def camera(tab):
     return np.r_[np.asarray(c.position, float), np.asarray(c.look_at, float)]
 
 
+def settled_3d(tab):
+    """The tab's redrawers and its Geometry view's redrawer idle at once."""
+    for _ in range(1000):
+        settled(tab)
+        assert tab.geo_draw.wait_idle(120)
+        if tab.fast.idle() and tab.slow.idle() and tab.geo_draw.idle():
+            return
+    raise AssertionError("the tab never settled")
+
+
+def assert_step1_in_3d(page, tab, app):
+    """Step 1 with cameras: the session's Geometry view, a frustum per registered photo with its
+    picture, the reference's in black; the photo view hidden; the words say what is drawn."""
+    from inspector import geometry_view as gv
+    from inspector.tour_views import cameras_key
+    snap = app.models[tab.settings.preset].snapshot()
+    cams, ref = snap.cameras, tab.settings.ref
+    tour = tab.tour
+    assert tab.view == "geometry" and tour.in_3d and tour.layout is None
+    geo = tab.geo
+    assert geo is not None and geo.key[0] == tab.settings.preset and geo.ref == ref
+    assert sorted(geo.cameras) == [int(k) for k in np.nonzero(cams.registered)[0]]
+    assert all(f.visible and f.image is not None for f in geo.cameras.values())
+    assert tuple(int(c) for c in geo.cameras[ref].color) == gv.REFERENCE_RGB
+    assert geo.root.visible and not tab.scene_img.visible
+    assert "Each pyramid is a camera" in tour.md_live.content and app.stems[ref] in tour.md_live.content
+    key = cameras_key(tour.panel_width())                # the photos, named, then the colours' key
+    assert tour.img_side.visible and np.array_equal(tour.img_side.image[-key.shape[0]:], key)
+    page.get_by_text("Each pyramid is a camera", exact=False).first.wait_for()
+
+
 def test_tour_walk_keys_and_click(browser, app):
     from inspector.tour_views import STEPS
     page, tab = open_tab(browser, app)
     tour = tab.tour
-    assert tour.step == 0
+    assert tour.step == 0 and tab.view == "photo"
     page.get_by_role("button", name="Take the guided tour").click()
     wait_event(tab, "tour shown", lambda v: v == 1)
-    settled(tab)
-    cam0, n0 = camera(tab), len(tab.events)
+    settled_3d(tab)
     pictures = {}
     for k in range(1, 8):
         if k > 1:
@@ -91,16 +139,23 @@ def test_tour_walk_keys_and_click(browser, app):
             nothing_focused(page)
             page.keyboard.press("ArrowRight")
             wait_event(tab, "tour shown", lambda v: v == k, after=n)
-            settled(tab)
+            settled_3d(tab)
         st = STEPS[k - 1]
         page.get_by_text(f"Step {k} of 7: {st.title}").wait_for()
         page.get_by_text(st.text.split("(")[0].replace("**", "").strip()[:30], exact=False).first.wait_for()
         assert "§" in st.text
-        assert tour.step == k and tour.layout is not None
+        assert tour.step == k
+        if k == 1:                          # the default preset has the set's cameras: they are shown in 3-D
+            assert_step1_in_3d(page, tab, app)
+            continue
+        assert tab.view == "photo" and tab.scene_img.visible and not tab.geo.root.visible
+        assert tour.layout is not None and not tour.in_3d
         rgb = tour.layout.rgb
         assert rgb.shape[0] > 200 and rgb.shape[1] > 400 and rgb.std() > 10      # a picture, not a message
         assert np.array_equal(tab.scene_img.image, rgb)                          # and it is what is shown
         pictures[k] = rgb
+        if k == 2:                          # the photo view from here on: straight at the picture
+            cam0, n0 = camera(tab), len(tab.events)
     # steps 2-7 are about a point: one was chosen, explained, and steps 3-7 draw its evidence
     assert tab.pixel is not None and tab.report is not None
     assert len({p.shape for p in pictures.values()}) > 2
@@ -109,6 +164,7 @@ def test_tour_walk_keys_and_click(browser, app):
     assert not [e for e in tab.events[n0:] if e[0] == "camera straightened"]
     c = camera(tab)
     assert np.allclose(c[:2], c[3:5], atol=1e-6) and np.allclose(c[3:], cam0[3:], atol=1e-6)
+    assert np.allclose(cam0[3:], 0, atol=1e-6)           # at the picture's centre, not where step 1 looked
     # left goes back, and stops at step 1 / 7 at the ends
     n = len(tab.events)
     nothing_focused(page)
@@ -161,7 +217,7 @@ def test_tour_walk_keys_and_click(browser, app):
     page.get_by_role("button", name="Leave the tour").click()
     wait_event(tab, "tour", lambda v: v == 0, after=n)
     settled(tab)
-    assert tour.layout is None
+    assert tour.layout is None and tab.view == "photo" and tab.scene_img.visible
     page.get_by_role("button", name="Take the guided tour").wait_for()
     print("tour step ms (server-side, step change to picture sent):", [round(x, 1) for x in tour.step_ms])
     page.close()
@@ -204,4 +260,55 @@ def test_bad_link_says_so(browser, app):
     wait_event(tab, "prepared")
     page.get_by_text(re.compile("no photo no_such_photo")).wait_for()
     assert tab.tour.step == 3
+    page.close()
+
+
+def test_tour_step1_follows_the_cameras(browser, app):
+    """Step 1 shows the cameras in 3-D when the preset has them, the photos side by side when it
+    has none (`paper`: each pair's own two-view geometry); leaving the tour gives back the view
+    the tab had (here the Geometry view, chosen before the tour)."""
+    from inspector.app import GEOMETRY_VIEW
+    page, tab = open_tab(browser, app)
+    n = len(tab.events)
+    tab.dd_view.value = GEOMETRY_VIEW                    # as the Main view control does
+    wait_event(tab, "geometry scene", after=n)
+    n = len(tab.events)
+    page.get_by_role("button", name="Take the guided tour").click()
+    wait_event(tab, "tour shown", lambda v: v == 1, after=n)
+    settled_3d(tab)
+    assert_step1_in_3d(page, tab, app)
+
+    # the paper preset: no cameras; once its run is in, step 1 is the grid of photos
+    n = len(tab.events)
+    tab.dd_preset.value = "paper"                        # as the Preset control does
+    wait_for(lambda: app.models["paper"].status == "done", 900, "the paper run")
+    tour = tab.tour
+    wait_for(lambda: "`paper` preset has no cameras" in tour.md_live.content, 120, "step 1 without cameras")
+    settled_3d(tab)
+    assert app.models["paper"].snapshot().cameras is None
+    assert tab.view == "photo" and not tour.in_3d and tab.scene_img.visible
+    assert tab.geo is None or not tab.geo.root.visible
+    rgb = tour.layout.rgb
+    assert rgb.shape[0] > 200 and rgb.shape[1] > 400 and rgb.std() > 10
+    assert np.array_equal(tab.scene_img.image, rgb)
+    assert "`paper` preset has no cameras" in tour.md_live.content
+    page.get_by_text("preset has no cameras for the set", exact=False).first.wait_for()
+
+    # back to default: the cameras again, at the next visit of step 1
+    n = len(tab.events)
+    tab.dd_preset.value = "default"
+    page.get_by_role("button", name="2", exact=True).click()
+    wait_event(tab, "tour shown", lambda v: v == 2, after=n)
+    n = len(tab.events)
+    page.get_by_role("button", name="1", exact=True).click()
+    wait_event(tab, "tour shown", lambda v: v == 1, after=n)
+    settled_3d(tab)
+    assert_step1_in_3d(page, tab, app)
+
+    # leaving the tour: the Geometry view the tab had before it
+    n = len(tab.events)
+    page.get_by_role("button", name="Leave the tour").click()
+    wait_event(tab, "tour", lambda v: v == 0, after=n)
+    settled_3d(tab)
+    assert tab.view == "geometry" and tab.geo.root.visible and not tab.scene_img.visible
     page.close()
