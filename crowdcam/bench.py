@@ -116,15 +116,99 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
 
 
 # ----------------------------------------------------------------------------- inspector latency
+UI_KINDS = ("threshold", "support toggle", "remap", "weights", "tour step")
+
+
+def _ms_summary(ms) -> dict:
+    import numpy as np
+    ms = np.asarray(ms, np.float64)
+    return {"median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)), "max_ms": float(ms.max()),
+            "n": int(len(ms))}
+
+
+def tour_latency(set_dir: Path, preset: str = "default", max_side: int = 640, rounds: int = 3,
+                 cache_dir: Path | None = None, presenter: bool = True, timeout: float = 1800.0) -> dict:
+    """Server-side time from "next" to the tour step's picture sent (composed, JPEG-encoded and
+    queued onto the tab's socket), on a real inspector tab without a browser (inspector.headless):
+    the inspector runs in this process (the per-pair cache makes a computed set start at once),
+    a headless tab connects, the run finishes and the tab settles (its gallery built), then the
+    tour is started and walked 1 → 7 `rounds` times through Tour.go, the call the Next button and
+    the step buttons make; each step is timed by the tour itself (Tour.step_ms: go() to the
+    picture sent, or for step 1 with cameras, to the Geometry view drawn) and the tab settles
+    before the next step, as when a teacher talks. The first round includes the default point's
+    explanation (chosen at step 2). Returns the summary over all steps and per step."""
+    import tempfile
+
+    from inspector.app import Inspector
+    from inspector.headless import HeadlessTab
+    from pipeline.cache import PairCache, default_cache_dir
+    from pipeline.loading import load_gts, load_set
+
+    ps = load_set(Path(set_dir), max_side)
+
+    def wait(pred, what: str) -> None:
+        t0 = time.time()
+        while not pred():
+            if time.time() - t0 > timeout:
+                raise TimeoutError(f"tour bench: timed out waiting for {what}")
+            time.sleep(0.005)
+
+    def settle(tab) -> None:
+        draws = [tab.fast, tab.slow, tab.geo_draw, tab.gallery.draw, tab.presets.draw]
+        while True:
+            for d in draws:
+                d.wait_idle(timeout)
+            if all(d.idle() for d in draws):
+                return
+
+    with tempfile.TemporaryDirectory(prefix="crowdcam-tour-bench-") as tmp:
+        app = Inspector(ps, load_gts(ps), PairCache(cache_dir or default_cache_dir()), Path(tmp), port=0,
+                        preset=preset, max_side=max_side)
+        try:
+            with HeadlessTab(app) as tab:
+                model = app.model(preset)
+                wait(lambda: model.status in ("done", "failed"), "the run")
+                if model.status == "failed":
+                    raise RuntimeError(f"the run failed: {model.error}")
+                settle(tab)
+                tour = tab.tour
+                steps: list[tuple[int, float]] = []
+
+                def turn(k: int, action) -> None:
+                    n, m = len(tab.events), len(tour.step_ms)
+                    action()
+                    wait(lambda: ("tour shown", k) in tab.events[n:] and len(tour.step_ms) > m, f"step {k}")
+                    steps.append((k, tour.step_ms[-1]))
+                    settle(tab)
+
+                tour.set_presenter(presenter)
+                turn(1, lambda: tour.start(1))                      # "Take the guided tour"
+                for r in range(rounds):
+                    if r:
+                        turn(1, lambda: tour.go(1))                 # the step button "1"
+                    for k in range(2, 8):
+                        turn(k, lambda: tour.go(tour.step + 1))     # "Next" (or →)
+                three_d = any(e == ("view", "geometry") for e in tab.events)
+                tour.stop()
+                settle(tab)
+        finally:
+            app.close()
+    out = _ms_summary([ms for _, ms in steps])
+    out["per_step"] = {k: _ms_summary([ms for j, ms in steps if j == k]) for k in range(1, 8)}
+    out["step1_3d"] = bool(three_d)
+    return out
+
+
 def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repeats: int = 30,
-               cache_dir: Path | None = None) -> dict:
+               cache_dir: Path | None = None, tour_rounds: int = 3) -> dict:
     """Server-side time of the inspector's main-view update, as a tab sees it: re-aggregate from
     the cached per-support maps (model.TermCache, through the pipeline's Eq. 2/3 functions), the
     refinement, the overlay, and the JPEG encode and send of viser's image handle.
 
     Measured on the reference with the most supports, all supports on, for each kind of change:
     threshold (no re-aggregation), a support toggled (sum of cached terms), and remap or weights
-    (the reference's terms recomputed). Returns per-kind median / 95th percentile / max in ms.
+    (the reference's terms recomputed). Returns per-kind median / 95th percentile / max in ms,
+    and the same for the tour's steps ("tour step", tour_latency; 0 rounds: not measured).
     """
     from dataclasses import replace
 
@@ -168,19 +252,27 @@ def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repe
         out = {"set": ps.name, "preset": preset, "reference": ps.photos[ref].stem, "supports": len(sups),
                "size": list(rgb.shape[:2])}
         for name, make in kinds.items():
-            ms = np.array([update(make(k)) for k in range(repeats)])
-            out[name] = {"median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)),
-                         "max_ms": float(ms.max())}
-        return out
+            out[name] = _ms_summary([update(make(k)) for k in range(repeats)])
     finally:
         server.stop()
+    del snap, terms                                    # the tour's inspector loads the run again
+    if tour_rounds:
+        out["tour step"] = tour_latency(set_dir, preset, max_side, tour_rounds, cache_dir)
+    return out
 
 
 def print_ui_latency(rows: list[dict]) -> None:
-    print(f"{'set':<20} {'ref':<10} {'sup':>3} {'size':>9}  " + "  ".join(
-        f"{k:>22}" for k in ("threshold", "support toggle", "remap", "weights")))
+    kinds = [k for k in UI_KINDS if any(k in r for r in rows)]
+    print(f"{'set':<20} {'ref':<10} {'sup':>3} {'size':>9}  " + "  ".join(f"{k:>22}" for k in kinds))
     for r in rows:
-        cells = "  ".join(f"{r[k]['median_ms']:6.1f} / {r[k]['p95_ms']:5.1f} / {r[k]['max_ms']:5.1f}"
-                          for k in ("threshold", "support toggle", "remap", "weights"))
+        cells = "  ".join(f"{r[k]['median_ms']:6.1f} / {r[k]['p95_ms']:5.1f} / {r[k]['max_ms']:5.1f}" if k in r
+                          else f"{'–':>22}" for k in kinds)
         print(f"{r['set']:<20} {r['reference']:<10} {r['supports']:>3} {r['size'][1]}x{r['size'][0]:<5} {cells}")
-    print("(ms: median / 95th percentile / max of the server-side main-view update)")
+    print("(ms: median / 95th percentile / max, server-side: the main-view update for each kind of change; "
+          "tour step: from \"next\" to the step's picture sent, every step of several walks through the tour)")
+    for r in rows:
+        t = r.get("tour step")
+        if t:
+            per = ", ".join(f"{k}: {v['median_ms']:.0f}/{v['max_ms']:.0f}" for k, v in t["per_step"].items())
+            print(f"{r['set']:<20} tour, {t['n']} steps, median/max ms per step: {per}"
+                  + (" (step 1: the cameras in 3-D)" if t.get("step1_3d") else ""))

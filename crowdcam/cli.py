@@ -390,7 +390,7 @@ def cmd_bench(args) -> int:
     presets = args.preset or ["default"]
     if args.ui:
         from crowdcam.bench import print_ui_latency, ui_latency
-        rows = [ui_latency(s, presets[0], args.max_side) for s in sets]
+        rows = [ui_latency(s, presets[0], args.max_side, tour_rounds=args.tour_rounds) for s in sets]
         print_ui_latency(rows)
         return 0
     out = Path(args.json) if args.json else Path.cwd() / "crowdcam-out" / "bench.json"
@@ -516,7 +516,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", default=None, help="where to write the JSON report (default ./crowdcam-out/bench.json)")
     b.add_argument("--quiet", action="store_true")
     b.add_argument("--ui", action="store_true",
-                   help="measure the inspector's main-view update latency instead (uses the cache)")
+                   help="measure the inspector's main-view update and tour-step latency instead (uses the cache)")
+    b.add_argument("--tour-rounds", type=int, default=3,
+                   help="with --ui: walks through the tour's seven steps to time (0: none; default 3)")
     b.set_defaults(fn=cmd_bench)
 
     cc = sub.add_parser("cache", help="show the size of the cache, or clear it")
