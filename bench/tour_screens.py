@@ -7,7 +7,9 @@ Runs the inspector in this process (the per-pair cache makes a computed set star
 opens it in Debian's Chromium, waits for the whole run, starts the tour and turns the pages
 with the arrow key, waiting for each step's picture to be sent (the session's "tour shown"
 event) and for the tab to settle before each screenshot. Writes DIR/<set>_<W>x<H>_step<k>.png
-(and .jpg) and prints the step latencies (ms, server-side: "next" to the picture sent).
+(and .jpg) and prints the step latencies (ms, server-side: "next" to the picture sent; for step 1
+with cameras, to the Geometry view drawn). `crowdcam bench --ui SET` times the steps without a
+browser, over several walks.
 """
 
 from __future__ import annotations
@@ -35,10 +37,13 @@ def wait_for(pred, timeout=600.0, what="condition"):
 
 
 def settled(tab):
+    """Every redrawer of the tab idle at once (its gallery and preset panels too, which a tab
+    computes once its pairs are in: the timings are those of a settled tab, as in a class)."""
+    draws = (tab.slow, tab.fast, tab.geo_draw, tab.gallery.draw, tab.presets.draw)
     for _ in range(1000):
-        tab.slow.wait_idle(300)
-        tab.fast.wait_idle(120)
-        if tab.slow.idle() and tab.fast.idle():
+        for d in draws:
+            d.wait_idle(600)
+        if all(d.idle() for d in draws):
             return
 
 
@@ -89,8 +94,8 @@ def main(argv=None) -> int:
                         wait_for(lambda: ("tour shown", k) in tab.events[n:], what=f"step {k}")
                     else:
                         wait_for(lambda: ("tour shown", 1) in tab.events, what="step 1")
-                    if k == 1 and a.presenter:
-                        page.get_by_label("Presenter mode").check()
+                    if k == 1 and a.presenter:      # as the checkbox does (a click would scroll the panel to it)
+                        tab.tour.set_presenter(True)
                         wait_for(lambda: ("presenter", True) in tab.events, what="presenter")
                     settled(tab)
                     if a.verbose:
