@@ -147,7 +147,7 @@ def _photo(rgb: np.ndarray, width: int) -> tuple[np.ndarray, float]:
     return np.ascontiguousarray(render.fit(rgb, width)), width / rgb.shape[1]
 
 
-MIN_WIDTH = 600       # a photo carrying a caption or a key: narrower (a portrait shot) and their words do not fit
+MIN_WIDTH = 600       # a photo with a colour key under it: narrower (a portrait shot) and the key's words do not fit
 
 
 def _photo_h(rgb: np.ndarray, height: int, min_width: int = 0) -> tuple[np.ndarray, float]:
@@ -369,8 +369,8 @@ def pair_picture(ref_rgb: np.ndarray, sup_rgb: np.ndarray, g, pixel: np.ndarray 
     """Step 2: the reference and one support side by side with the pair's matched features
     (inliers, green) and, for the clicked pixel, its epipolar line F x (yellow) in the support
     (or, for a homography pair, the point H x)."""
-    a, s = _photo_h(ref_rgb, HEIGHT, MIN_WIDTH)
-    b, t = _photo_h(sup_rgb, HEIGHT, MIN_WIDTH)
+    a, s = _photo_h(ref_rgb, HEIGHT)
+    b, t = _photo_h(sup_rgb, HEIGHT)
     _dots(a, g.inliers_ref, s, MATCH_RGB)
     _dots(b, g.inliers_sup, t, MATCH_RGB)
     _cross(a, pixel, s, look.t(12))
@@ -405,8 +405,8 @@ def strips_picture(ref_rgb: np.ndarray, sup_rgb: np.ndarray, pair, pixel: np.nda
     """Step 3: the reference's first fan of strips (yellow boundaries, from the epipole), the clicked
     point's strip (filled) and patch (white); in the support, the corresponding strip boundaries
     and the point's strip between its two lines (blue)."""
-    a, s = _photo_h(ref_rgb, HEIGHT, MIN_WIDTH)
-    b, t = _photo_h(sup_rgb, HEIGHT, MIN_WIDTH)
+    a, s = _photo_h(ref_rgb, HEIGHT)
+    b, t = _photo_h(sup_rgb, HEIGHT)
     if pair is None or pair.kind != "epipolar" or pair.strips is None:
         msg = ("This support is aligned by one homography (a shot from about the same spot, or a flat scene): "
                "it has no strips. Choose an epipolar support in the tour panel.")
