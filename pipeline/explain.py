@@ -233,15 +233,8 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
 
 def _fused_curve(res, i: int, sw: list[int], gy: int, gx: int) -> np.ndarray:
     """(D,) the fused cost of one grid pixel at every plane (sweep.fuse for one pixel)."""
-    from .sweep import SCALE, UNSEEN
+    from .sweep import fused_costs
     pairs = [res.pair_results[(i, k)].sweep for k in sw]
     D = max(p.cost.shape[2] for p in pairs)
-    vals = np.stack([np.broadcast_to(p.cost[gy, gx], (D,)) for p in pairs]).astype(np.float32)   # (S, D)
-    vals = np.where(vals == UNSEEN, np.inf, vals / SCALE)
-    n = np.isfinite(vals).sum(axis=0)
-    k = np.maximum(np.ceil(n * res.params.sweep.best_share), 1).astype(int)
-    srt = np.sort(vals, axis=0)
-    csum = np.cumsum(np.where(np.isfinite(srt), srt, 0.0), axis=0)
-    fused = np.take_along_axis(csum, (k - 1)[None], axis=0)[0] / k
-    return np.where(n > 0, fused, np.nan).astype(np.float32)
-
+    costs = np.stack([np.broadcast_to(p.cost[gy, gx], (D,)) for p in pairs])       # (S, D) uint8
+    return fused_costs(costs, res.same_spot(i, sw), res.params.sweep.best_share)

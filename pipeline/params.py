@@ -31,6 +31,10 @@ class GeometryParams:
     triplet_check: bool = False        # paper: two-view tests only; default: pairs must agree across triplets
     triplet_max_px: float = 4.0        # median chained epipolar distance for a consistent triplet
     peer_homography: bool = False      # the peer baseline (peer.py): every pair aligned by one homography
+    # Departure (default preset): in a set with a reconstruction, a two-view F (a photo the cameras did
+    # not register) whose lines the two half-data refits put further apart than this (x working max
+    # side; 16 px at 640) is not trusted. paper: 0 = no such test. Applied after the cached geometry.
+    two_view_max_uncertainty_frac: float = 0.0
     # Large sets (screen.py; departure: the paper's sets are small and every pair is tried).
     screen_above: int = 16             # sets of more photos compare only the pairs a cheap screen picks
     screen_keep: int = 12              # each photo's partners with the most shared strong features
@@ -125,6 +129,12 @@ class SweepParams:
     lightness_mean: bool = True        # SSIM's luminance term on L (False: structure only on L)
     blur: float = 0.0                  # Gaussian sigma (grid px) before comparing
     best_share: float = 0.5            # fuse the best half of the supports that see a point (occlusion)
+    same_spot_px: float = 0.0          # supports whose match moves less than this over the depth range (working
+                                       # px; shots from the reference's spot) always count: 0 = none are pinned
+    smooth_p2: float = 0.0             # > 0: the plane per pixel by semi-global regularisation of the fused
+    smooth_p1: float = 0.3             # volume (jump penalty p2, next-plane penalty p1, in cost units), not the
+    smooth_paths: int = 8              # best plane alone (EVIDENCE_NOTES point 9); 4 or 8 path directions
+    smooth_unseen: float = 0.4         # the cost of a plane no support sees, for the regularisation
     ssim_c1: float = 1.0               # SSIM constants for Lab (L in 0..100): (0.01 * 100)^2, (0.03 * 100)^2
     ssim_c2: float = 9.0
     color_weight: float = 0.0          # share of the cost from the windows' mean colour distance (Lab)
@@ -161,13 +171,23 @@ class Params:
         return json.dumps(d, sort_keys=True)
 
     def sweep_key_material(self) -> str:
-        """The parameters a per-pair cost volume depends on (not the calibration)."""
-        d = {k: v for k, v in dataclasses.asdict(self.sweep).items() if not k.startswith("calib")}
+        """The parameters a per-pair cost volume depends on (not the fusion's, nor the calibration)."""
+        d = {k: v for k, v in dataclasses.asdict(self.sweep).items() if k not in SWEEP_FUSION}
         return json.dumps({"max_side": self.max_side, "sweep": d}, sort_keys=True)
 
     def geometry_key_material(self) -> str:
-        return json.dumps({"max_side": self.max_side, "geometry": dataclasses.asdict(self.geometry)},
-                          sort_keys=True)
+        """The parameters the cached features, pair geometry and reconstruction depend on (not the
+        tests applied to them afterwards, run.detect_set)."""
+        g = {k: v for k, v in dataclasses.asdict(self.geometry).items() if k not in POST_GEOMETRY}
+        return json.dumps({"max_side": self.max_side, "geometry": g}, sort_keys=True)
+
+
+# SweepParams fields of the per-reference fusion and calibration, not of a pair's cost volume
+SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "same_spot_px", "smooth_p2", "smooth_p1",
+                "smooth_paths", "smooth_unseen", "calib_slope", "calib_centre", "weight")
+
+# GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
+POST_GEOMETRY = ("two_view_max_uncertainty_frac",)
 
 
 def digest(text: str) -> str:
@@ -179,12 +199,14 @@ PRESETS: dict[str, Params] = {
     # Ours (issue 5): departures are listed in the README with their measured effect.
     "default": Params(
         preset="default",
-        geometry=GeometryParams(homography_pairs=True, triplet_check=True, reconstruction=True),
+        geometry=GeometryParams(homography_pairs=True, triplet_check=True, reconstruction=True,
+                                two_view_max_uncertainty_frac=0.025),
         patches=PatchParams(homography_reach_frac=0.1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
-                                  calib_scale=1.12, calib_offset=0.2),
-        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=48),
+                                  calib_scale=1.544, calib_offset=-0.65),
+        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=48, same_spot_px=8.0,
+                          smooth_p2=4.0),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
     "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),

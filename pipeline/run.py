@@ -32,11 +32,12 @@ from .refine import refine
 from .reconstruction import SetCameras, apply_reconstruction, ground_plane, reconstruct
 from .store import PairStore, light_of
 from .screen import screen_pairs, shared_features
-from .support import PairGeometry, cap_supports, estimate_pair, not_compared, support_sets, triplet_check
+from .support import (PairGeometry, cap_supports, estimate_pair, not_compared, support_sets, triplet_check,
+                      uncertainty_gate)
 from .peer import PeerPair, difference, dynamic_from_differences
 from .homography import aligned_support, reach_distance
 from .photometric import normalise_aligned
-from .sweep import Fused, aligned_pair, fuse, inverse_depths, reference_planes, sweep_pair
+from .sweep import Fused, aligned_pair, depth_span_px, fuse, inverse_depths, reference_planes, sweep_pair
 
 Progress = Callable[[str, int, int], None]
 
@@ -70,6 +71,7 @@ class SetResult:
     cache_hits: int = 0
     cache_misses: int = 0
     _fused: dict = field(default_factory=dict, repr=False, compare=False)
+    _spans: dict = field(default_factory=dict, repr=False, compare=False)
 
     def is_swept(self, i: int, j: int) -> bool:
         """The pair also has a cost volume of the depth sweep (sweep.py)."""
@@ -86,12 +88,37 @@ class SetResult:
         if not sw:
             return None
         p = params or self.params
-        key = (i, sw, p.sweep.best_share)
+        sp = p.sweep
+        key = (i, sw, sp.best_share, sp.same_spot_px, sp.smooth_p1, sp.smooth_p2, sp.smooth_paths, sp.smooth_unseen)
         if key not in self._fused:
             if len(self._fused) > 32:
                 self._fused.clear()
-            self._fused[key] = fuse([self.pair_results[(i, j)].sweep for j in sw], p.sweep)
+            pairs = [self.pair_results[(i, j)].sweep for j in sw]
+            self._fused[key] = fuse(pairs, sp, self.same_spot(i, sw, p))
         return self._fused[key]
+
+    def same_spot(self, i: int, supports, params: Params | None = None) -> np.ndarray:
+        """(S,) bool for the swept `supports` of photo i: taken from i's own spot (a direct
+        comparison: an aligned pair, or cameras whose match moves less than `sweep.same_spot_px` over
+        the reference's depth range, sweep.depth_span_px). Such supports always count in the fusion."""
+        p = params or self.params
+        out = np.zeros(len(supports), bool)
+        if not p.sweep.same_spot_px > 0:
+            return out
+        for k, j in enumerate(supports):
+            if self.pair_results[(i, j)].sweep.kind == "aligned":
+                out[k] = True
+            elif self.cameras is not None and self.cameras.registered[i] and self.cameras.registered[j]:
+                out[k] = self.depth_span(i, j) < p.sweep.same_spot_px
+        return out
+
+    def depth_span(self, i: int, j: int) -> float:
+        """sweep.depth_span_px of the pair (i, j) over i's depth range, working px (cached)."""
+        if (i, j) not in self._spans:
+            c = self.cameras
+            self._spans[(i, j)] = depth_span_px((c.K[i], c.R[i], c.C[i]), (c.K[j], c.R[j], c.C[j]),
+                                                float(c.depth_range[i][0]), self.photo_set.photos[i].size)
+        return self._spans[(i, j)]
 
     def sweep_log_odds(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray | None:
         """The depth-consistent cue as static log-odds, (h, w) float32 (0 where no support sees
@@ -689,6 +716,11 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             if not cameras.n_registered:
                 _warn(f"{photo_set.root}: no reconstruction of the set ({cameras.reasons[0]}); "
                       "all pairs use two-view geometry")
+        if params.geometry.two_view_max_uncertainty_frac > 0 and cameras is not None and cameras.n_registered:
+            # where the set has cameras, a photo they left out must earn its pairs by certain lines;
+            # without a reconstruction every pair is two-view, and the two-view tests decide alone
+            pairs = uncertainty_gate(pairs, params.geometry.two_view_max_uncertainty_frac * max(
+                max(p.size) for p in photos))
         if params.geometry.triplet_check:
             pairs = triplet_check(pairs, n, params.geometry.triplet_max_px)
         supports = support_sets(pairs, n)

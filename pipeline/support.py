@@ -274,6 +274,30 @@ def triplet_check(pairs: dict[tuple[int, int], PairGeometry], n: int, max_px: fl
     return out
 
 
+def uncertainty_gate(pairs: dict[tuple[int, int], PairGeometry], limit_px: float
+                     ) -> dict[tuple[int, int], PairGeometry]:
+    """Departure (default preset): reject two-view epipolar pairs whose lines are uncertain by more
+    than `limit_px` (uncertainty_px, the spread of two half-data refits over the whole image).
+
+    A two-view F fits its inliers, which often lie on one or two planes, and is free elsewhere;
+    measured against the renderer's true cameras, most two-view F's that pass every two-view test
+    and are still 5-40 px off on the scene have such a spread (issue "Geometry you can trust").
+    Reconstruction pairs meet the same limit in apply_reconstruction. Returns the updated pairs
+    (both orders); limit_px <= 0 changes nothing."""
+    import dataclasses
+    if not limit_px > 0:
+        return pairs
+    out = dict(pairs)
+    for (a, b), g in pairs.items():
+        if a < b and g.status == OK and g.source == "two-view" and not g.uncertainty_px <= limit_px:
+            r = dataclasses.replace(g, status=REJECTED, source="",
+                                    reason=f"epipolar lines too uncertain ({g.uncertainty_px:.1f} px > {limit_px:.1f} px: "
+                                           "F refitted on either half of the matches moves them)")
+            out[(a, b)] = r
+            out[(b, a)] = r.reversed()
+    return out
+
+
 def support_sets(pairs: dict[tuple[int, int], PairGeometry], n: int) -> list[list[int]]:
     """For each reference index, the sorted indices of its admitted support images."""
     return [sorted(j for j in range(n) if j != i and pairs[(i, j)].ok) for i in range(n)]

@@ -250,39 +250,106 @@ def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.nd
 
 
 # ----------------------------------------------------------------------------- per reference
-def fuse(pairs: list[SweepPair], sp: SweepParams) -> Fused:
-    """One depth for all supports: at each plane, the mean cost of the best `best_share` of the
-    supports that see the point (at least one); the best plane per pixel.
+def depth_span_px(cam_ref: tuple, cam_sup: tuple, near: float, size: tuple[int, int], step: int = 16) -> float:
+    """How far the support's match of a reference pixel travels as its depth goes from `near` to
+    infinity: the 90th percentile over a grid of the reference (h, w) of that distance, in support
+    pixels (cam_*: (K, R, C) at working resolution). Near 0: the two photos were taken from one
+    spot, and every depth warps the support alike."""
+    K_i, R_i, C_i = cam_ref
+    K_j, R_j, C_j = cam_sup
+    h, w = size
+    ys, xs = np.mgrid[0:h:step, 0:w:step]
+    ray = R_i.T @ np.linalg.inv(K_i) @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])    # world directions
+    X_near = C_i[:, None] + ray * (near / (R_i @ ray)[2])
+    q_near = K_j @ (R_j @ (X_near - C_j[:, None]))
+    q_far = K_j @ (R_j @ ray)
+    ok = (q_near[2] > 1e-9) & (q_far[2] > 1e-9)
+    if not ok.any():
+        return float("inf")
+    d = np.linalg.norm(q_near[:2, ok] / q_near[2, ok] - q_far[:2, ok] / q_far[2, ok], axis=0)
+    return float(np.percentile(d, 90))
+
+
+def fused_costs(costs: np.ndarray, same_spot: np.ndarray, share: float) -> np.ndarray:
+    """The fusion of one pixel at every plane, in numpy (the compiled kernel's definition, for one
+    pixel: explain.py and the tests).
+
+    costs: (S, D) uint8 as in SweepPair.cost (UNSEEN where a support does not see the point);
+    same_spot: (S,) bool. Returns (D,) float32 in [0, 1], NaN where no support sees the point:
+    the mean of every same-spot support that sees the point and of the best `share` of the others.
+    """
+    vals = np.where(costs == UNSEEN, np.inf, costs.astype(np.float64))
+    pinned = same_spot[:, None] & np.isfinite(vals)
+    free = np.sort(np.where(same_spot[:, None], np.inf, vals), axis=0)
+    n_free = np.isfinite(free).sum(axis=0)
+    k = np.ceil(n_free * share).astype(int)
+    k = np.where((k == 0) & (n_free > 0) & ~pinned.any(axis=0), 1, k)        # at least one support
+    csum = np.concatenate([np.zeros((1, vals.shape[1])), np.cumsum(np.where(np.isfinite(free), free, 0.0), axis=0)])
+    total = np.take_along_axis(csum, k[None], axis=0)[0] + np.where(pinned, vals, 0.0).sum(axis=0)
+    count = k + pinned.sum(axis=0)
+    return np.where(count > 0, total / np.maximum(count, 1) / SCALE, np.nan).astype(np.float32)
+
+
+def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None = None) -> Fused:
+    """One depth for all supports.
+
+    At each plane, the mean cost of the best `best_share` of the supports that see the point (a
+    support where the point is hidden must not veto it), with the supports from the reference's
+    own spot (same_spot, (S,) bool; depth_span_px) always counted: a photo taken from the same place
+    cannot see behind what the reference sees, so its "no match" is never an occlusion. Then one
+    plane per pixel: the best one, or with `smooth_p2` > 0 the one a semi-global regularisation
+    of the fused volume picks (smooth_volume): the static scene's depth is smooth, a mover's
+    accidental look-alike depths are not (EVIDENCE_NOTES point 9). The cost reported is the fused
+    cost at that plane.
 
     pairs: the reference's SweepPairs ("sweep" ones share the same planes; "aligned" ones count
     at every plane). Returns Fused at the sweep resolution.
     """
     assert pairs, "no support to fuse"
     D = max(p.cost.shape[2] for p in pairs)
-    stack = np.stack([np.broadcast_to(p.cost, (*p.cost.shape[:2], D)) for p in pairs])
-    cost, plane, n_seen, per = _fuse_kernel(stack, float(sp.best_share), float(sp.min_seen_share))
-    per = np.where(per == UNSEEN, np.nan, per.astype(np.float32) / SCALE).astype(np.float32)
-    return Fused(np.where(plane >= 0, cost, np.nan).astype(np.float32), plane, n_seen, per)
+    stack = np.ascontiguousarray(np.stack([np.broadcast_to(p.cost, (*p.cost.shape[:2], D)) for p in pairs]))
+    pinned = np.zeros(len(pairs), np.bool_) if same_spot is None else np.asarray(same_spot, np.bool_)
+    volume, n_vol = _volume_kernel(stack, pinned, float(sp.best_share), float(sp.min_seen_share))
+    if sp.smooth_p2 > 0:
+        planes = next((p.planes for p in pairs if len(p.planes)), np.zeros((0, 4)))
+        fronto = (planes[:, 0] == 0) & (planes[:, 1] == 0) & (planes[:, 2] == 1)     # listed first
+        plane = smooth_volume(volume, sp, int(fronto.sum()) if len(planes) else D)
+    else:
+        plane = np.argmin(np.where(volume >= 0, volume, np.inf), axis=2).astype(np.int16)
+    cost = np.take_along_axis(volume, plane[..., None].astype(np.intp), 2)[..., 0]
+    seen = cost >= 0
+    plane = np.where(seen, plane, -1).astype(np.int16)
+    at = np.maximum(plane, 0).astype(np.intp)[None, ..., None]
+    n_seen = np.where(seen, np.take_along_axis(n_vol, at[0], 2)[..., 0], 0).astype(np.uint8)
+    per = np.take_along_axis(stack, np.broadcast_to(at, (len(pairs), *plane.shape, 1)), 3)[..., 0]
+    per = np.where(seen[None] & (per != UNSEEN), per.astype(np.float32) / SCALE, np.nan).astype(np.float32)
+    return Fused(np.where(seen, cost, np.nan).astype(np.float32), plane, n_seen, per)
 
 
-def _fuse_numba():
-    """The fusion kernel, compiled once (numba): per pixel and plane a partial sort of a handful
-    of supports, a loop numpy cannot vectorise without sorting every (plane, pixel) column."""
+def smooth_volume(volume: np.ndarray, sp: SweepParams, n_fronto: int) -> np.ndarray:
+    """The plane per pixel that semi-global matching (Hirschmueller 2008) picks on a fused volume
+    (h, w, D) float32 (-1 where no support sees the point, costed `smooth_unseen`): path costs
+    along `smooth_paths` directions with a penalty `smooth_p1` for a step to the next plane and
+    `smooth_p2` for a jump; planes [0, n_fronto) (parallel to the image) and [n_fronto, D) (parallel
+    to the ground) are two families, a change of family is a jump. Returns (h, w) int16."""
+    cost = np.where(volume >= 0, volume, np.float32(sp.smooth_unseen)).astype(np.float32)
+    total = _sgm_kernel(cost, int(n_fronto), float(sp.smooth_p1), float(sp.smooth_p2), int(sp.smooth_paths))
+    return np.argmin(total, axis=2).astype(np.int16)
+
+
+def _volume_numba():
+    """The fused volume (numba): per pixel and plane a partial sort of a handful of supports,
+    which numpy can only do by sorting every (plane, pixel) column."""
     import numba
 
     @numba.njit(parallel=True, cache=True, nogil=True)
-    def kernel(stack, share, min_seen_share):
+    def kernel(stack, pinned, share, min_seen_share):
         S, H, W, D = stack.shape
-        cost = np.zeros((H, W), np.float32)
-        plane = np.full((H, W), -1, np.int16)
-        n_seen = np.zeros((H, W), np.uint8)
-        per = np.full((S, H, W), UNSEEN, np.uint8)
+        volume = np.full((H, W, D), -1.0, np.float32)
+        n_vol = np.zeros((H, W, D), np.uint8)
         for y in numba.prange(H):
             vals = np.empty(S, np.int32)
             for x in range(W):
-                best = 1e9
-                bp = -1
-                bn = 0
                 # a plane seen by few of the supports that could see the point is no agreement: it
                 # would win by having fewer costs to average (min_seen_share of the most at any plane)
                 n_max = 0
@@ -295,15 +362,22 @@ def _fuse_numba():
                 n_min = max(1, int(np.ceil(n_max * min_seen_share)))
                 for d in range(D):
                     n = 0
+                    n_pin = 0
+                    total = 0
                     for s_ in range(S):
                         v = stack[s_, y, x, d]
                         if v != UNSEEN:
-                            vals[n] = v
-                            n += 1
-                    if n < n_min:
+                            if pinned[s_]:
+                                total += v
+                                n_pin += 1
+                            else:
+                                vals[n] = v
+                                n += 1
+                    if n + n_pin < n_min:
                         continue
-                    k = max(int(np.ceil(n * share)), 1)
-                    total = 0
+                    k = int(np.ceil(n * share))
+                    if k == 0 and n_pin == 0:
+                        k = 1
                     for a in range(k):              # partial selection sort: the k smallest
                         m = a
                         for b in range(a + 1, n):
@@ -311,16 +385,59 @@ def _fuse_numba():
                                 m = b
                         vals[a], vals[m] = vals[m], vals[a]
                         total += vals[a]
-                    f = total / k
-                    if f < best:
-                        best, bp, bn = f, d, n
-                if bp >= 0:
-                    cost[y, x] = best / SCALE
-                    plane[y, x] = bp
-                    n_seen[y, x] = bn
-                    for s_ in range(S):
-                        per[s_, y, x] = stack[s_, y, x, bp]
-        return cost, plane, n_seen, per
+                    volume[y, x, d] = total / (k + n_pin) / SCALE
+                    n_vol[y, x, d] = n + n_pin
+        return volume, n_vol
+    return kernel
+
+
+def _sgm_numba():
+    """Semi-global path costs (numba): each path is a scan along one direction with an O(D) step,
+    a recursion numpy cannot vectorise; the paths of one direction are independent (parallel)."""
+    import numba
+
+    @numba.njit(parallel=True, cache=True, nogil=True)
+    def kernel(cost, n_fronto, p1, p2, n_paths):
+        H, W, D = cost.shape
+        total = np.zeros((H, W, D), np.float32)
+        steps = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [-1, -1], [1, -1], [-1, 1]])
+        for k in range(n_paths):
+            dy, dx = steps[k, 0], steps[k, 1]
+            # a path starts at every pixel whose predecessor lies outside the image
+            starts = np.empty((H * W, 2), np.int64)
+            ns = 0
+            for y in range(H):
+                for x in range(W):
+                    if not (0 <= y - dy < H and 0 <= x - dx < W):
+                        starts[ns, 0] = y
+                        starts[ns, 1] = x
+                        ns += 1
+            for si in numba.prange(ns):
+                y, x = starts[si, 0], starts[si, 1]
+                prev = np.empty(D, np.float32)
+                cur = np.empty(D, np.float32)
+                for d in range(D):
+                    prev[d] = cost[y, x, d]
+                    total[y, x, d] += prev[d]
+                y += dy
+                x += dx
+                while 0 <= y < H and 0 <= x < W:
+                    low = prev[0]
+                    for d in range(1, D):
+                        low = min(low, prev[d])
+                    for d in range(D):
+                        best = min(prev[d], low + p2)
+                        if d > 0 and d != n_fronto:                 # the next plane of the same family
+                            best = min(best, prev[d - 1] + p1)
+                        if d + 1 < D and d + 1 != n_fronto:
+                            best = min(best, prev[d + 1] + p1)
+                        cur[d] = cost[y, x, d] + best - low
+                    for d in range(D):
+                        prev[d] = cur[d]
+                        total[y, x, d] += cur[d]
+                    y += dy
+                    x += dx
+        return total
     return kernel
 
 
@@ -360,5 +477,6 @@ def _ssim_numba():
 
 
 
-_fuse_kernel = LazyKernel(_fuse_numba)
+_volume_kernel = LazyKernel(_volume_numba)
+_sgm_kernel = LazyKernel(_sgm_numba)
 _ssim_kernel = LazyKernel(_ssim_numba)

@@ -117,3 +117,24 @@ def test_cap_supports_picks_k_deterministically_and_spreads_viewpoints():
     b = cap_supports(supports, pairs, 3, None)                     # without cameras: the best matched
     assert b[0] == [1, 2, 3]
     assert cap_supports(supports, pairs, 10, centres)[0] == supports[0]
+
+
+def test_uncertainty_gate_rejects_only_uncertain_two_view_pairs():
+    """Two-view F's whose half-data refits disagree by more than the limit are not trusted;
+    reconstruction and homography pairs, and certain two-view pairs, stay as they were."""
+    from pipeline.support import HOMOGRAPHY, OK, REJECTED, PairGeometry, uncertainty_gate
+    empty = np.zeros((0, 2), np.float32)
+
+    def pair(i, j, status, source, unc):
+        g = PairGeometry(i, j, np.eye(3), status, "", 100, 100, 0.5, 0.1, 0.1, 1.0, empty, empty, empty, empty,
+                         source=source, uncertainty_px=unc)
+        return {(i, j): g, (j, i): g.reversed()}
+    pairs = {**pair(0, 1, OK, "two-view", 5.0), **pair(0, 2, OK, "two-view", 30.0),
+             **pair(1, 2, OK, "reconstruction", 30.0), **pair(0, 3, HOMOGRAPHY, "homography", 30.0),
+             **pair(1, 3, OK, "two-view", float("nan"))}
+    out = uncertainty_gate(pairs, 16.0)
+    assert out[(0, 2)].status == out[(2, 0)].status == REJECTED and "too uncertain (30.0 px" in out[(0, 2)].reason
+    assert out[(1, 3)].status == REJECTED                     # unknown is not certain
+    for ij in ((0, 1), (1, 0), (1, 2), (2, 1), (0, 3), (3, 0)):
+        assert out[ij] is pairs[ij]
+    assert uncertainty_gate(pairs, 0.0) is pairs               # off

@@ -1,6 +1,8 @@
 """The depth-consistent cue (pipeline/sweep.py) and the peer baseline (pipeline/peer.py):
 properties, on images made here from a textured plane and known cameras."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -161,3 +163,62 @@ def test_peer_baseline_finds_a_pasted_object_under_pure_rotation():
     a[60:100, 80:120] = (240, 20, 20)                          # only in the reference
     p = dynamic_from_differences([difference(0, 1, a, b, H).diff])
     assert p[70:90, 90:110].mean() > 0.8 and p[20:40, 20:60].mean() < 0.3
+
+
+def test_fusion_kernel_equals_its_numpy_definition_with_same_spot_supports():
+    rng = np.random.default_rng(5)
+    cost = rng.integers(0, 256, (5, 6, 7, 9), dtype=np.uint8)           # 5 supports, 6 x 7 pixels, 9 planes
+    pairs = [SW.SweepPair(0, k + 1, cost[k], np.zeros((9, 4)), 0.0) for k in range(5)]
+    same = np.array([True, False, False, True, False])
+    f = SW.fuse(pairs, SP, same)
+    for y in range(6):
+        for x in range(7):
+            curve = SW.fused_costs(cost[:, y, x], same, SP.best_share)
+            if np.all(np.isnan(curve)):
+                assert f.plane[y, x] == -1 and np.isnan(f.cost[y, x])
+                continue
+            assert f.cost[y, x] == pytest.approx(np.nanmin(curve), abs=1e-6)
+            assert curve[f.plane[y, x]] == pytest.approx(np.nanmin(curve), abs=1e-6)
+
+
+def test_a_support_from_the_same_spot_is_never_dropped_as_occluded():
+    # three supports agree at plane 2; the one taken from the reference's spot sees no match there
+    cost = np.full((4, 1, 1, 5), 200, np.uint8)
+    cost[:3, 0, 0, 2] = 10
+    cost[3] = 220
+    pairs = [SW.SweepPair(0, k + 1, cost[k], np.zeros((5, 4)), 0.0) for k in range(4)]
+    lenient = SW.fuse(pairs, SP)
+    strict = SW.fuse(pairs, SP, np.array([False, False, False, True]))
+    assert lenient.cost[0, 0] == pytest.approx(10 / SW.SCALE)            # the best half: the three that agree
+    assert strict.cost[0, 0] > 0.3                                       # the same-spot support's "no" counts
+
+
+def test_smoothing_keeps_a_consistent_depth_and_denies_scattered_look_alikes():
+    rng = np.random.default_rng(7)
+    H, W, D = 40, 60, 30
+    cost = rng.integers(60, 120, (3, H, W, D)).astype(np.uint8)         # no plane matches well ...
+    cost[:, :, :, 12] = 15                                               # ... except the scene's depth
+    rows, cols = slice(10, 30), slice(20, 40)
+    mover = np.zeros((H, W), bool)
+    mover[rows, cols] = True
+    cost[:, mover, 12] = 110                                             # the mover: no match at the scene's depth,
+    look_alike = rng.integers(0, D, mover.sum())                         # a look-alike at a random plane per pixel
+    cost[:, mover, look_alike] = 15
+    pairs = [SW.SweepPair(0, k + 1, cost[k], np.zeros((D, 4)), 0.0) for k in range(3)]
+    plain = SW.fuse(pairs, SP)
+    smooth = SW.fuse(pairs, dataclasses.replace(SP, smooth_p2=2.0, smooth_p1=0.3))
+    assert np.all(smooth.cost >= plain.cost - 1e-6)                      # never better than the best plane
+    assert np.mean(smooth.plane[~mover] == 12) > 0.99 and smooth.cost[~mover].max() < 0.07
+    assert plain.cost[mover].max() < 0.07                                # each pixel alone finds its look-alike,
+    assert np.median(smooth.cost[mover]) > 0.2                           # one smooth depth does not
+
+
+def test_depth_span_is_zero_from_one_spot_and_grows_with_the_baseline():
+    ang = np.deg2rad(10)
+    R = np.array([[np.cos(ang), 0, np.sin(ang)], [0, 1, 0], [-np.sin(ang), 0, np.cos(ang)]])
+    ref = (K, np.eye(3), np.zeros(3))
+    assert SW.depth_span_px(ref, (K, R, np.zeros(3)), 1.5, SIZE) < 1e-6
+    small = SW.depth_span_px(ref, (K, R, np.array([0.01, 0, 0])), 1.5, SIZE)
+    assert 0 < small < 2.0
+    sideways = SW.depth_span_px(ref, (K, np.eye(3), np.array([0.5, 0, 0])), 1.5, SIZE)
+    assert sideways == pytest.approx(180 * 0.5 / 1.5, rel=1e-6)          # f * baseline / near
