@@ -132,7 +132,7 @@ class SetModel:
                     raise Cancelled()
             return self.first_ref
 
-        def on_pair(ij, result):             # detect_set has put it in self.results
+        def on_pair(ij):                     # detect_set has put it in self.results
             self._notify()
 
         try:

@@ -198,6 +198,30 @@ class PairCache:
         self.hits += 1
         return payload
 
+    def has(self, kind: str, key: str) -> bool:
+        """The entry is there and whole (its header and length; the checksum is checked when it is
+        read), without reading it: refreshes its time and keeps it from this run's evictions."""
+        p = self.path(kind, key)
+        if p is None:
+            return False
+        try:
+            size = p.stat().st_size
+            with open(p, "rb") as f:
+                head = f.read(_HEADER.size)
+        except OSError:
+            return False
+        if len(head) < _HEADER.size:
+            return False
+        magic, fmt, length, _ = _HEADER.unpack(head)
+        if magic != MAGIC or fmt != FORMAT or size != _HEADER.size + length:
+            return False
+        try:
+            os.utime(p)
+        except OSError:
+            pass
+        self._mine.add(p)
+        return True
+
     def load(self, kind: str, key: str, decode: Callable[[bytes], Any]) -> Any | None:
         """get() and decode; an entry that passes its checksum but does not decode (written by
         other code) is treated like a bad one."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import json
 import multiprocessing as mp
 import os
 import threading
@@ -525,6 +526,11 @@ def _photos_plugin(rgbs, params):
     return PhotosPlugin(rgbs, params)
 
 
+def _decode_light(data: bytes):
+    from .store import Light
+    return cache_mod.from_bytes(Light, data)
+
+
 def _check(cancel: threading.Event | None) -> None:
     if cancel is not None and cancel.is_set():
         raise Cancelled()
@@ -600,14 +606,15 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                workers: int | None = None, progress: Progress | None = None,
                warn: Callable[[str], None] | None = None, only_refs: Iterable[int] | None = None,
                on_geometry: Callable[[dict, list[list[int]], SetCameras | None], int | None] | None = None,
-               on_pair: Callable[[tuple[int, int], PairResult], None] | None = None,
+               on_pair: Callable[[tuple[int, int]], None] | None = None,
                cancel: threading.Event | None = None, max_supports: int | None = None,
                scheduler: str | None = None, store: PairStore | None = None) -> SetResult:
     """Compute P_dynamic for every photo of the set (or only for `only_refs`).
 
     For viewers that show results as they arrive: `on_geometry(pairs, supports, cameras)` is called once
     the support sets and the cameras are known (it may return a reference whose pairs are then computed first),
-    `on_pair((i, j), result)` for every pair result (cached ones first). Setting `cancel` stops the run soon after (raises Cancelled).
+    `on_pair((i, j))` for every pair result put in the store (cached ones first; those are read from the
+    cache when first needed). Setting `cancel` stops the run soon after (raises Cancelled).
     max_supports: at most this many supports per reference (support.cap_supports); None: 8 for sets
     of more than 9 photos, no cap below; 0: no cap. scheduler: a Dask scheduler address
     (tcp://HOST:PORT) to run the per-pair work on instead of the local process pool. store: where
@@ -773,13 +780,28 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         results = store if store is not None else PairStore(cache)
         todo = []
         for ij in ordered:
-            r = cache.load("pair", pkey[ij], lambda d, ij=ij: load(ij, d))
-            if r is not None:
-                results.put(ij, r, pkey[ij], lambda d, ij=ij: load(ij, d))
-                if on_pair:
-                    on_pair(ij, r)
+            decode = lambda d, ij=ij: load(ij, d)
+            light = cache.load("light", pkey[ij], _decode_light)
+            if light is not None and cache.has("pair", pkey[ij]):
+                results.put_lazy(ij, light, pkey[ij], decode)     # read from the cache when first needed
             else:
-                todo.append(ij)
+                r = cache.load("pair", pkey[ij], decode)
+                if r is None:
+                    todo.append(ij)
+                    continue
+                results.put(ij, r, pkey[ij], decode)
+                cache.put("light", pkey[ij], cache_mod.to_bytes(light_of(r)))
+            if on_pair:
+                on_pair(ij)
+        sweep_args = lambda i, j: (cam(i), cam(j), inv[i]) if (i, j) in swept else None
+
+        def recompute(ij):
+            """A pair read lazily that the cache lost or found bad: computed again here (inline)."""
+            out = []
+            _Runner(rgbs, params, 1).map(_task_pair, [(*ij, pairs[ij], sweep_args(*ij))], out.append)
+            cache.put("pair", pkey[ij], out[0][1])
+            return load(ij, out[0][1])
+        results.recompute = recompute
         pdone = [len(ordered) - len(todo)]
         progress("pairs", pdone[0], len(ordered))
 
@@ -789,23 +811,34 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             cache.put("pair", pkey[ij], data)
             r = load(ij, data)
             results.put(ij, r, pkey[ij], lambda d, ij=ij: load(ij, d))
+            cache.put("light", pkey[ij], cache_mod.to_bytes(light_of(r)))
             if on_pair:
-                on_pair(ij, r)
+                on_pair(ij)
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
-        runner.map(_task_pair, [(i, j, pairs[(i, j)], (cam(i), cam(j), inv[i]) if (i, j) in swept else None)
-                                for i, j in todo], got_pair,
+        runner.map(_task_pair, [(i, j, pairs[(i, j)], sweep_args(i, j)) for i, j in todo], got_pair,
                    label=lambda a: f"the pair {photos[a[0]].name} -> {photos[a[1]].name}")
         timings["pairs_s"] = time.perf_counter() - t1
     finally:
         runner.close()
 
-    # 6. Set-level normalisation and aggregation.
+    # 6. Set-level normalisation and aggregation; each photo's map is cached too, keyed by every
+    # pair of the run (the normaliser of §3.1.2 spans them all) and every parameter, so a re-run
+    # with nothing changed reads no pair at all.
     t2 = time.perf_counter()
     result = assemble(photo_set, params, pairs, supports, results, keypoints, timings, warnings, cameras)
+    run_key = cache_mod.key("run", json.dumps(params.to_dict(), sort_keys=True, default=str),
+                            *(f"{i},{j}:{pkey[(i, j)]}" for i, j in sorted(pkey)))
     for i in refs:
         if supports[i]:
-            result.dynamic[i] = result.dynamic_prob(i, supports[i])
+            mkey = cache_mod.key("dynamic", photos[i].key, run_key, ",".join(map(str, supports[i])))
+            dyn = cache.load("dynamic", mkey, lambda d: np.load(io.BytesIO(d), allow_pickle=False))
+            if dyn is None or dyn.shape != tuple(photos[i].size) or dyn.dtype != np.float32:
+                dyn = result.dynamic_prob(i, supports[i])
+                buf = io.BytesIO()
+                np.save(buf, np.ascontiguousarray(dyn, np.float32))
+                cache.put("dynamic", mkey, buf.getvalue())
+            result.dynamic[i] = dyn
     timings["aggregate_s"] = time.perf_counter() - t2
     result.cache_hits = cache.hits - hits0
     result.cache_misses = cache.misses - miss0

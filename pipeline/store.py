@@ -40,12 +40,15 @@ class PairStore(Mapping):
     """Ordered pair -> pair result (matching.PairResult or peer.PeerPair), thread-safe.
 
     put(ij, result, key, decode): a finished pair and how to reload it (cache.load("pair", key,
-    decode)). Reading a pair that was evicted reloads it; if the cache lost it meanwhile (its own
-    size cap, a user clearing it), KeyError names the pair.
+    decode)); put_lazy: a pair in the cache, not read yet. Reading a pair that was evicted (or not
+    read yet) loads it; if the cache lost it meanwhile (its own size cap, a user clearing it, a bad
+    entry deleted), `recompute` computes it again, and without one KeyError names the pair.
     """
 
     def __init__(self, cache, keep: int = 24):
         self.cache = cache
+        self.recompute: Callable[[tuple[int, int]], Any] | None = None   # a pair the cache lost or
+        # found bad when read (deleted with a warning): computed again, cached, returned
         self.keep = keep if cache is not None and cache.root is not None else None
         self._mem: OrderedDict = OrderedDict()
         self._how: dict = {}
@@ -59,6 +62,12 @@ class PairStore(Mapping):
             self._mem[ij] = result
             self._mem.move_to_end(ij)
             self._trim()
+
+    def put_lazy(self, ij: tuple[int, int], light: Light, key: str, decode: Callable[[bytes], Any]) -> None:
+        """A pair known to be in the cache, by its summary alone: decoded when first read."""
+        with self._lock:
+            self._how[ij] = (key, decode)
+            self._light[ij] = light
 
     def _trim(self) -> None:
         if self.keep is None:
@@ -78,6 +87,8 @@ class PairStore(Mapping):
                 raise KeyError(ij)
             key, decode = self._how[ij]
         result = self.cache.load("pair", key, decode)
+        if result is None and self.recompute is not None:
+            result = self.recompute(ij)
         if result is None:
             raise KeyError(f"pair {ij}: its result left the cache during the run; run again")
         with self._lock:

@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from conftest import ROOT, SAMPLE_SETS
@@ -85,3 +86,32 @@ def test_detect_heals_a_truncated_cache_entry(tmp_path):
     assert r.returncode == 0 and "geometry" in r.stdout and "pair" in r.stdout
     r = run_cli("cache", "clear", "--cache-dir", cache)
     assert r.returncode == 0 and not list(cache.rglob("*.npz"))
+
+
+def test_a_rerun_reads_no_pair_and_a_bad_pair_read_later_is_recomputed(tmp_path):
+    """A re-run with nothing changed takes every photo's map from the cache without decoding a
+    pair; a pair entry that went bad meanwhile is found when a viewer reads it, and is computed
+    again (with a warning), equal to what it was."""
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+    params = get_preset("paper").replace(max_side=160)
+    photos = load_set(SAMPLE_SETS / "tabletop_ball", params.max_side)
+    first = detect_set(photos, params, PairCache(tmp_path), workers=1)
+    ij = next(iter(first.pair_results))
+    before = first.pair_results[ij].hog_map.copy()
+    p = next(iter((tmp_path / "pair").rglob("*.npz")))
+    raw = bytearray(p.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF                       # same length: only its checksum tells
+    p.write_bytes(bytes(raw))
+    warnings = []
+    cache = PairCache(tmp_path, warn=warnings.append)
+    again = detect_set(photos, params, cache, workers=1)
+    assert cache.misses == 0 and not warnings         # maps from the cache, no pair decoded
+    assert all((a is None and b is None) or np.array_equal(a, b) for a, b in zip(first.dynamic, again.dynamic))
+    for k in again.pair_results:                      # a viewer reads the pairs: the bad one heals
+        r = again.pair_results[k]
+        if k == ij:
+            np.testing.assert_array_equal(r.hog_map, before)
+    assert len(warnings) == 1 and "bad cache entry" in warnings[0]
+    unpack(p.read_bytes())                            # written again, whole
