@@ -166,14 +166,14 @@ class SetResult:
         return self.refine_dynamic(i, np.where(self.has_evidence(i, supports, p), dyn, 0.5).astype(np.float32), p)
 
     def sweep_seen(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
-        """(h, w) float32, 1 where some swept support sees the point, else 0. The calibration's
-        offset applies there only: it was fitted with the depth cue, and without it the decision
-        at 0.5 stays Eq. 3's (the static and dynamic terms balance)."""
+        """(h, w) float32 where the calibration's offset applies: 1 over the whole photo when some
+        support among `supports` is swept, else 0. `crowdcam calibrate` fits it over every pixel of
+        such photos, the depth cue's and the strips' alike (applied only where a swept support sees
+        the point, the strips' pixels beside them read more dynamic than the fit meant: `Slide`
+        0.30 against 0.32); a photo without the depth cue keeps Eq. 3's decision at 0.5."""
         p = params or self.params
-        f = self.fused(i, supports, p) if p.sweep.weight > 0 else None
-        if f is None:
-            return np.zeros(self.photo_set.photos[i].size, np.float32)
-        return (self._upsample(i, (f.n_seen > 0).astype(np.float32)) > 0.5).astype(np.float32)
+        swept = p.sweep.weight > 0 and any(self.is_swept(i, j) for j in supports)
+        return np.full(self.photo_set.photos[i].size, 1.0 if swept else 0.0, np.float32)
 
     def has_evidence(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
         """(h, w) bool: some support had a candidate for the pixel (Eq. 2 evidence) or saw it at
