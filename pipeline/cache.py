@@ -74,12 +74,21 @@ def _resolve(owner: type, hint: Any) -> type:
     return hint
 
 
-def to_bytes(obj: Any, float16: tuple[str, ...] = ()) -> bytes:
+def to_bytes(obj: Any, float16: tuple[str, ...] = (), delta: tuple[str, ...] = ()) -> bytes:
+    """A dataclass (nested ones too) as npz bytes. float16: fields stored as float16; delta:
+    uint8 fields stored as differences along their last axis (mod 256), which deflate packs
+    better and faster (a cost volume, smooth along its planes: 61 % -> 48 % of its size)."""
     arrays: dict[str, np.ndarray] = {}
     meta: dict[str, Any] = {}
     _flatten(obj, "", arrays, meta)
     for k in float16:
         arrays[k] = arrays[k].astype(np.float16)
+    deltas = [k for k in delta if k in arrays and arrays[k].dtype == np.uint8 and arrays[k].ndim]
+    for k in deltas:
+        a = arrays[k]
+        arrays[k] = np.diff(a, axis=-1, prepend=np.zeros((*a.shape[:-1], 1), np.uint8))   # wraps mod 256
+    if deltas:
+        meta["__delta__"] = deltas
     arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     buf = io.BytesIO()
     # np.savez_compressed's deflate level 6 took 0.25 s per swept pair; level 1 is 4x faster and the
@@ -96,6 +105,8 @@ def from_bytes(cls: type, data: bytes, float32: tuple[str, ...] = ()) -> Any:
     with np.load(io.BytesIO(data), allow_pickle=False) as z:
         meta = json.loads(bytes(z["__meta__"]).decode())
         arrays = {k: z[k] for k in z.files if k != "__meta__"}
+    for k in meta.pop("__delta__", []):
+        arrays[k] = np.cumsum(arrays[k], axis=-1, dtype=np.uint8)
     for k in float32:
         arrays[k] = arrays[k].astype(np.float32)
     return _unflatten(cls, "", arrays, meta)

@@ -347,7 +347,7 @@ def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None)
         # `direct_reach_frac` beyond); parallax past it reads as change at once, unlike the patch search
         inside = inside * (reach_distance(g.inliers_ref, (h, w)) <= p.sweep.direct_reach_frac * max(h, w))
         r = dataclasses.replace(r, sweep=aligned_pair(i, j, rgb_i, warped, inside.astype(np.float32), p.sweep))
-    return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS)
+    return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS, delta=("sweep.cost",))
 
 
 class WorkerDied(RuntimeError):

@@ -115,3 +115,16 @@ def test_a_rerun_reads_no_pair_and_a_bad_pair_read_later_is_recomputed(tmp_path)
             np.testing.assert_array_equal(r.hog_map, before)
     assert len(warnings) == 1 and "bad cache entry" in warnings[0]
     unpack(p.read_bytes())                            # written again, whole
+
+
+def test_a_volume_stored_as_differences_comes_back_exactly():
+    """uint8 fields stored as differences along their last axis (mod 256) decode to the same bytes."""
+    from pipeline.cache import from_bytes, to_bytes
+    from pipeline.sweep import SweepPair
+    rng = np.random.default_rng(0)
+    cost = rng.integers(0, 256, (5, 6, 40), dtype=np.uint8)
+    cost[:, :, 10:20] = 255                                   # unseen planes, and a wrap around 0/255
+    pair = SweepPair(0, 1, cost, np.zeros((40, 4)), 0.5)
+    back = from_bytes(SweepPair, to_bytes(pair, delta=("cost",)))
+    assert back.cost.dtype == np.uint8 and np.array_equal(back.cost, cost)
+    assert from_bytes(SweepPair, to_bytes(pair)).cost.tobytes() == cost.tobytes()     # without, as before
