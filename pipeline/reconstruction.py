@@ -514,18 +514,23 @@ def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[n
     from .support import OK, REJECTED
     out = dict(pairs)
     n = len(cams.registered)
+    order = np.argsort(cams.obs[:, 1], kind="stable")            # each photo's points, found once
+    bounds = np.searchsorted(cams.obs[order, 1], np.arange(n + 1))
+    seen_by = [np.unique(cams.obs[order[bounds[k]:bounds[k + 1]], 0]) for k in range(n)]
     for i in range(n):
         for j in range(i + 1, n):
             g = pairs[(i, j)]
             if not (cams.registered[i] and cams.registered[j]) or g.is_homography:
                 continue
-            common = cams.covisible(i, j)
+            common = np.intersect1d(seen_by[i], seen_by[j], assume_unique=True)     # cams.covisible(i, j)
             unc = float(np.nanmax([cams.pair_unc[i, j], cams.pair_unc[j, i]])) \
                 if np.isfinite(cams.pair_unc[[i, j], [j, i]]).any() else float("nan")
             baseline = float(np.linalg.norm(cams.C[i] - cams.C[j]))
-            seen = cams.points[common] if len(common) else cams.points[cams.obs[cams.obs[:, 1] == i, 0]]
+            seen = cams.points[common] if len(common) else cams.points[seen_by[i]]
             depth = float(np.median(cams.depth(i, seen))) if len(seen) else float("nan")
-            overlap = min(cams.view_overlap(i, j, sizes[j]), cams.view_overlap(j, i, sizes[i]))
+            # the share of each photo's scene in view of the other matters only with few common points
+            overlap = min(cams.view_overlap(i, j, sizes[j]), cams.view_overlap(j, i, sizes[i])) \
+                if len(common) < p.recon_min_covisible else 1.0
             why = None
             if len(common) < p.recon_min_covisible and overlap < p.recon_min_overlap:
                 why = (f"the cameras see little of the same scene ({len(common)} common points, {overlap:.0%} of "

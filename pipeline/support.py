@@ -218,17 +218,31 @@ def _homography_pair(i, j, F, f_inl, p_ref, p_sup, size_i, size_j, scale, hshare
                   inl, spread, hshare, scale=scale, H=H / H[2, 2], unc=parallax)
 
 
-def _chained(pairs, i: int, j: int, k: int, min_tracks: int = 8) -> float | None:
+def _position_keys(xy: np.ndarray) -> np.ndarray:
+    """(N, 2) float32 positions -> (N,) uint64 keys, equal exactly where the positions are."""
+    return np.ascontiguousarray(xy, np.float32).view(np.uint64).ravel()
+
+
+def _index_of(pairs, i: int, j: int, memo: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The (sorted keys, row) of pair (i, j)'s reference inliers by position; where a position
+    repeats, its last row (memoised per pair: a triplet check asks for every pair many times)."""
+    if (i, j) not in memo:
+        keys = _position_keys(pairs[(i, j)].inliers_ref)
+        uniq, first_rev = np.unique(keys[::-1], return_index=True)
+        memo[(i, j)] = (uniq, len(keys) - 1 - first_rev)
+    return memo[(i, j)]
+
+
+def _chained(pairs, i: int, j: int, k: int, min_tracks: int = 8, memo: dict | None = None) -> float | None:
     """Median distance of chained matches x_j <- x_i -> x_k to their epipolar lines under F_jk
     (the keypoints of photo i matched, as inliers, in both (i, j) and (i, k)); None if too few."""
     g_ij, g_ik, g_jk = pairs[(i, j)], pairs[(i, k)], pairs[(j, k)]
-    index = {row.tobytes(): n for n, row in enumerate(np.ascontiguousarray(g_ij.inliers_ref, np.float32))}
-    a, b = [], []
-    for n, row in enumerate(np.ascontiguousarray(g_ik.inliers_ref, np.float32)):
-        m = index.get(row.tobytes())
-        if m is not None:
-            a.append(m)
-            b.append(n)
+    uniq, row = _index_of(pairs, i, j, {} if memo is None else memo)
+    keys = _position_keys(g_ik.inliers_ref)
+    at = np.minimum(np.searchsorted(uniq, keys), max(len(uniq) - 1, 0))
+    found = (uniq[at] == keys) if len(uniq) else np.zeros(len(keys), bool)
+    b = np.nonzero(found)[0]
+    a = row[at[b]]
     if len(a) < min_tracks:
         return None
     return float(np.median(symmetric_epipolar_distance(g_jk.F, g_ij.inliers_sup[a], g_ik.inliers_sup[b])))
@@ -247,12 +261,14 @@ def triplet_check(pairs: dict[tuple[int, int], PairGeometry], n: int, max_px: fl
     import dataclasses
     ok = lambda a, b: pairs[(a, b)].status == OK
     votes: dict[tuple[int, int], list[int]] = {}
+    memo: dict = {}
     for a in range(n):
         for b in range(a + 1, n):
             for c in range(b + 1, n):
                 if not (ok(a, b) and ok(a, c) and ok(b, c)):
                     continue
-                closings = [_chained(pairs, a, b, c), _chained(pairs, b, a, c), _chained(pairs, c, a, b)]
+                closings = [_chained(pairs, a, b, c, memo=memo), _chained(pairs, b, a, c, memo=memo),
+                            _chained(pairs, c, a, b, memo=memo)]
                 closings = [x for x in closings if x is not None]
                 if not closings:
                     continue

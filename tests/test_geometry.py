@@ -1,6 +1,7 @@
 """Known-answer geometry on a synthetic camera pair."""
 
 import numpy as np
+import pytest
 
 from conftest import project
 from pipeline.geometry import (epipolar_lines, epipoles, fundamental_to_original, scale_matrix,
@@ -138,3 +139,26 @@ def test_uncertainty_gate_rejects_only_uncertain_two_view_pairs():
     for ij in ((0, 1), (1, 0), (1, 2), (2, 1), (0, 3), (3, 0)):
         assert out[ij] is pairs[ij]
     assert uncertainty_gate(pairs, 0.0) is pairs               # off
+
+
+def test_the_fast_triplet_closing_equals_the_one_by_position():
+    """_chained finds the shared reference keypoints by their exact positions (a sorted search),
+    as a dictionary of positions does, the last row winning where a position repeats."""
+    from pipeline.geometry import symmetric_epipolar_distance
+    from pipeline.support import OK, PairGeometry, _chained
+    rng = np.random.default_rng(4)
+    empty = np.zeros((0, 2), np.float32)
+    pts = rng.uniform(0, 500, (60, 2)).astype(np.float32)
+    a_rows = np.concatenate([pts[:40], pts[5:6]])                 # a repeated position in (0, 1)
+    b_rows = pts[rng.permutation(60)[:45]]
+    F = rng.normal(size=(3, 3))
+    sup1 = rng.uniform(0, 500, (len(a_rows), 2)).astype(np.float32)
+    sup2 = rng.uniform(0, 500, (len(b_rows), 2)).astype(np.float32)
+    g = lambda i, j, r, s, FF=np.eye(3): PairGeometry(i, j, FF, OK, "", 50, 50, 0.5, 0.1, 0.1, 1.0, r, s, empty, empty)
+    pairs = {(0, 1): g(0, 1, a_rows, sup1), (0, 2): g(0, 2, b_rows, sup2), (1, 2): g(1, 2, empty, empty, F)}
+    index = {row.tobytes(): n for n, row in enumerate(a_rows)}
+    a = [index[row.tobytes()] for row in b_rows if row.tobytes() in index]
+    b = [n for n, row in enumerate(b_rows) if row.tobytes() in index]
+    want = float(np.median(symmetric_epipolar_distance(F, sup1[a], sup2[b])))
+    assert _chained(pairs, 0, 1, 2) == pytest.approx(want, abs=1e-9)
+    assert _chained(pairs, 0, 1, 2, min_tracks=len(a) + 1) is None
