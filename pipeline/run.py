@@ -46,6 +46,7 @@ Progress = Callable[[str, int, int], None]
 class Cancelled(Exception):
     """detect_set was stopped through its `cancel` event."""
 MAP_FIELDS = ("hog_map", "color_map", "evidence")
+MAPS_VERSION = "2"      # bump when a change alters how pair results become a photo's map (its cache key)
 
 
 @dataclass
@@ -827,7 +828,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     # with nothing changed reads no pair at all.
     t2 = time.perf_counter()
     result = assemble(photo_set, params, pairs, supports, results, keypoints, timings, warnings, cameras)
-    run_key = cache_mod.key("run", json.dumps(params.to_dict(), sort_keys=True, default=str),
+    run_key = cache_mod.key("run", MAPS_VERSION, json.dumps(params.to_dict(), sort_keys=True, default=str),
                             *(f"{i},{j}:{pkey[(i, j)]}" for i, j in sorted(pkey)))
     for i in refs:
         if supports[i]:
