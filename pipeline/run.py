@@ -362,7 +362,12 @@ class _Runner:
     unfinished tasks are retried once; a task unfinished at a second death raises WorkerDied.
     Results delivered before (and cached by on_done) are kept. On any other exception, Ctrl-C
     included, the workers are terminated at once (they ignore SIGINT themselves), so a stop takes
-    no longer than the process exits."""
+    no longer than the process exits.
+
+    urgent (optional): a test of a task's arguments, asked each time a task is handed to a worker;
+    the first waiting task that passes goes next, else the first in order. With it, at most
+    workers + 2 tasks are in the pool at a time, so that a change of mind (a viewer's reference)
+    waits for those alone; without it, every task is queued at once."""
 
     def __init__(self, rgbs: list[np.ndarray], params: Params, workers: int):
         self.workers = workers
@@ -377,11 +382,14 @@ class _Runner:
                                             initializer=_init_worker, initargs=self.args)
 
     def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
-            label: Callable[[tuple], str] = lambda a: str(a[:2])) -> None:
+            label: Callable[[tuple], str] = lambda a: str(a[:2]),
+            urgent: Callable[[tuple], bool] | None = None) -> None:
         if not arg_list:
             return
         if self.workers <= 1:
-            for a in arg_list:
+            waiting = list(arg_list)
+            while waiting:
+                a = waiting.pop(_next_task(waiting, urgent))
                 with _INLINE:            # another inline run (a viewer's second preset) shares this process
                     if _W.get("owner") is not self:
                         _init_worker(*self.args)
@@ -392,12 +400,17 @@ class _Runner:
         from concurrent.futures.process import BrokenProcessPool
         pending = dict(enumerate(arg_list))
         deaths: dict[int, int] = {}
+        limit = len(arg_list) if urgent is None else self.workers + 2
         while pending:
             self._ensure_pool()
             futures: dict = {}
+            waiting = list(pending)          # not handed to the pool yet
             try:
-                for k, a in pending.items():
-                    futures[self.pool.submit(fn, *a)] = k
+                def feed():
+                    while waiting and len(futures) < limit:
+                        k = waiting.pop(_next_task([pending[k] for k in waiting], urgent) if urgent else 0)
+                        futures[self.pool.submit(fn, *pending[k])] = k
+                feed()
                 while futures:
                     # Wake up twice a second even when nothing finishes: Ctrl-C's signal may reach
                     # another thread of this process, and Python raises KeyboardInterrupt only when
@@ -411,11 +424,12 @@ class _Runner:
                         del pending[futures.pop(fut)]
                         on_done(result)
                         del result
+                    feed()
             except BrokenProcessPool:
                 self.close(kill=True)
-                for k in pending:
+                for k in futures.values():       # the tasks in the pool when it broke
                     deaths[k] = deaths.get(k, 0) + 1
-                twice = [k for k in pending if deaths[k] > 1]
+                twice = [k for k in futures.values() if deaths[k] > 1]
                 if twice:
                     raise WorkerDied(f"a worker process died twice while computing {label(pending[twice[0]])} "
                                      "(out of memory?); the finished pairs are cached, a re-run resumes") from None
@@ -459,6 +473,15 @@ class _Runner:
         self.pool = None
 
 
+def _next_task(waiting: list[tuple], urgent: Callable[[tuple], bool] | None) -> int:
+    """The index in `waiting` of the task to hand out next: the first that `urgent` passes, else 0."""
+    if urgent is not None:
+        for k, a in enumerate(waiting):
+            if urgent(a):
+                return k
+    return 0
+
+
 class SchedulerError(RuntimeError):
     """The Dask scheduler given by the user cannot be reached."""
 
@@ -486,7 +509,9 @@ class _DaskRunner:
         self.workers = len(self.client.scheduler_info().get("workers", {}))
 
     def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
-            label: Callable[[tuple], str] = lambda a: str(a[:2])) -> None:
+            label: Callable[[tuple], str] = lambda a: str(a[:2]),
+            urgent: Callable[[tuple], bool] | None = None) -> None:
+        # urgent is not used: every task is submitted at once, and Dask fixes a task's priority then
         if not arg_list:
             return
         from distributed import as_completed as dask_completed
@@ -609,7 +634,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                on_geometry: Callable[[dict, list[list[int]], SetCameras | None], int | None] | None = None,
                on_pair: Callable[[tuple[int, int]], None] | None = None,
                cancel: threading.Event | None = None, max_supports: int | None = None,
-               scheduler: str | None = None, store: PairStore | None = None) -> SetResult:
+               scheduler: str | None = None, store: PairStore | None = None,
+               prefer: Callable[[], int | None] | None = None) -> SetResult:
     """Compute P_dynamic for every photo of the set (or only for `only_refs`).
 
     For viewers that show results as they arrive: `on_geometry(pairs, supports, cameras)` is called once
@@ -621,6 +647,9 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     (tcp://HOST:PORT) to run the per-pair work on instead of the local process pool. store: where
     pair results go (a viewer passes its own to read them while the run goes on); only the most
     recently used stay in memory, the others reload from the cache (store.PairStore).
+    prefer: asked each time a pair is handed to a worker (local pool or inline, not Dask): a reference
+    whose pairs go next (a viewer's shown reference, which may change while the run goes on), or
+    None for the run's own order.
     """
     cache = cache or cache_mod.PairCache(None)
     workers = default_workers() if workers is None else workers
@@ -818,7 +847,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
         runner.map(_task_pair, [(i, j, pairs[(i, j)], sweep_args(i, j)) for i, j in todo], got_pair,
-                   label=lambda a: f"the pair {photos[a[0]].name} -> {photos[a[1]].name}")
+                   label=lambda a: f"the pair {photos[a[0]].name} -> {photos[a[1]].name}",
+                   urgent=None if prefer is None else (lambda a: a[0] == prefer()))
         timings["pairs_s"] = time.perf_counter() - t1
     finally:
         runner.close()
