@@ -45,6 +45,16 @@ def wait_event(session, name, pred=lambda v: True, after=0, timeout=120.0):
     wait_for(found, timeout, f"event {name!r}")
 
 
+NOT_IN_TOOLTIP = "xpath=//*[not(ancestor-or-self::*[@role='tooltip'])]"
+
+
+def shown_text(page, text, exact: bool | None = None):
+    """page.get_by_text, but not inside a hint's tooltip: a hint under the mouse repeats words of the
+    panel (the Main view's hint names "Click the reference's picture"), and a strict locator that
+    also matched the tooltip failed whenever the mouse happened to rest on that control."""
+    return page.get_by_text(text, exact=exact).and_(page.locator(NOT_IN_TOOLTIP))
+
+
 @pytest.fixture(scope="module")
 def browser():
     """One headless Chromium per test module."""

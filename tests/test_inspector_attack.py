@@ -14,7 +14,7 @@ import threading
 from pathlib import Path
 
 
-from browserkit import browser, wait_for  # noqa: F401 (a fixture)
+from browserkit import browser, wait_for, shown_text  # noqa: F401 (a fixture)
 from conftest import ROOT, SAMPLE_SETS
 from bench.stress import OWN_PAGE, http_status, outside_paths
 
@@ -33,7 +33,7 @@ def open_tab(browser, app):
     page = browser.new_context(viewport={"width": 1280, "height": 720}).new_page()
     before = set(app.sessions)
     page.goto(app.url)
-    page.get_by_text("Threshold", exact=True).first.wait_for(timeout=60_000)
+    shown_text(page, "Threshold", exact=True).first.wait_for(timeout=60_000)
     wait_for(lambda: set(app.sessions) - before, what="the tab's session")
     return page, app.sessions[(set(app.sessions) - before).pop()]
 
@@ -75,8 +75,8 @@ def test_a_run_that_raises_says_so_and_the_server_lives(tmp_path, browser, monke
         assert "No space left on device" in m.error
         for _ in range(2):                              # the tab open before and one opened after
             page, tab = open_tab(browser, app)
-            page.get_by_text(re.compile(r"^Cannot compute the default preset")).wait_for(timeout=60_000)
-            page.get_by_text(re.compile(r"No space left on device")).first.wait_for(timeout=10_000)
+            shown_text(page, re.compile(r"^Cannot compute the default preset")).wait_for(timeout=60_000)
+            shown_text(page, re.compile(r"No space left on device")).first.wait_for(timeout=10_000)
             assert "Traceback" not in page.evaluate("() => document.body.innerText")
         n = len(tab.events)
         box = page.locator(f'[id="{tab.sl_thr._impl.uuid}"]').locator("xpath=../..") \
@@ -111,8 +111,8 @@ def test_workers_killed_in_the_inspector_say_so_and_the_server_lives(tmp_path, b
         page, tab = open_tab(browser, app)
         wait_for(lambda: m.status in ("done", "failed"), 600, "the run's end")
         assert m.status == "failed" and "died twice" in m.error, m.error
-        page.get_by_text(re.compile(r"^Cannot compute the paper preset")).wait_for(timeout=60_000)
-        page.get_by_text(re.compile(r"died twice while computing the pair")).first.wait_for(timeout=10_000)
+        shown_text(page, re.compile(r"^Cannot compute the paper preset")).wait_for(timeout=60_000)
+        shown_text(page, re.compile(r"died twice while computing the pair")).first.wait_for(timeout=10_000)
         assert "Traceback" not in page.evaluate("() => document.body.innerText")
         n = len(tab.events)
         box = page.locator(f'[id="{tab.sl_thr._impl.uuid}"]').locator("xpath=../..") \
@@ -123,7 +123,7 @@ def test_workers_killed_in_the_inspector_say_so_and_the_server_lives(tmp_path, b
                  what="the tab's threshold")
         assert tab.fast.wait_idle(60)
         page2, _ = open_tab(browser, app)                # a new tab opens and is told too
-        page2.get_by_text(re.compile(r"^Cannot compute the paper preset")).wait_for(timeout=60_000)
+        shown_text(page2, re.compile(r"^Cannot compute the paper preset")).wait_for(timeout=60_000)
         assert http_status(app.server.get_port(), b"/")[0] == 200
         page.context.close()
         page2.context.close()

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from browserkit import browser, wait_event, wait_for  # noqa: F401 (a fixture)
+from browserkit import browser, wait_event, wait_for, shown_text  # noqa: F401 (a fixture)
 from conftest import SAMPLE_SETS
 
 
@@ -54,10 +54,10 @@ def open_tab(browser, app, viewport=(1366, 768)):
     page = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}).new_page()
     before = set(app.sessions)
     page.goto(app.url)
-    page.get_by_text("Threshold", exact=True).first.wait_for(timeout=60_000)
+    shown_text(page, "Threshold", exact=True).first.wait_for(timeout=60_000)
     wait_for(lambda: set(app.sessions) - before, what="the tab's session")
     tab = app.sessions[(set(app.sessions) - before).pop()]
-    page.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=900_000)
+    shown_text(page, re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=900_000)
     close = page.locator(".mantine-Notification-closeButton")     # the "software WebGL" toast over the canvas
     if close.count():
         close.first.click()
@@ -79,7 +79,7 @@ def test_gallery_entry_opens_its_explanation(browser, cache_dir):
         assert abs(g.threshold - tab.settings.threshold) < 1e-6
 
         page.get_by_role("tab", name="Gallery").click()
-        page.get_by_text(f"Failure gallery of {stem}").first.wait_for(timeout=10_000)
+        shown_text(page, f"Failure gallery of {stem}").first.wait_for(timeout=10_000)
         e = g.entries[0]
         btn = page.get_by_role("button", name=entry_label(e))
         btn.wait_for(timeout=10_000)
@@ -118,7 +118,7 @@ def test_gallery_entry_opens_its_explanation(browser, cache_dir):
             assert f"| {app.stems[e_.sup]} (" in slot.ev_tables.content
         # seen without leaving the Gallery tab (the Pixel tab, which says the same, is hidden)
         verdict = re.compile(rf"{KIND_LETTER[e.region.kind]}{e.region.rank}: Pixel \({x}, {y}\)\s*of {stem}: P_dynamic {rep.dynamic:.2f}")
-        page.get_by_text(verdict).locator("visible=true").first.wait_for(timeout=10_000)
+        shown_text(page, verdict).locator("visible=true").first.wait_for(timeout=10_000)
         first_sup = app.stems[rep.evidence[0].sup]
         page.get_by_role("cell", name=re.compile(rf"^{first_sup} \(")).locator("visible=true").first.wait_for(
             timeout=10_000)
@@ -154,7 +154,7 @@ def test_gallery_entry_opens_its_explanation(browser, cache_dir):
         settled(tab)
         assert tab.gallery.key[1] == other and tab.gallery.gallery.stem == app.stems[other]
         page.get_by_role("tab", name="Gallery").click()
-        page.get_by_text(f"Failure gallery of {app.stems[other]}").first.wait_for(timeout=10_000)
+        shown_text(page, f"Failure gallery of {app.stems[other]}").first.wait_for(timeout=10_000)
         assert tab.gallery.compute_ms
     finally:
         app.close()
@@ -171,7 +171,7 @@ def test_gallery_without_ground_truth_lists_uncertain_regions(browser, cache_dir
         assert not g.has_gt
         assert all(e.region.kind == UNCERTAIN for e in g.entries)
         page.get_by_role("tab", name="Gallery").click()
-        page.get_by_text("no ground truth", exact=False).first.wait_for(timeout=10_000)
+        shown_text(page, "no ground truth", exact=False).first.wait_for(timeout=10_000)
         if g.entries:
             e = g.entries[0]
             n = len(tab.events)
@@ -200,7 +200,7 @@ def test_presets_side_by_side_stay_in_sync(browser, cache_dir):
         page.get_by_role("tab", name="Presets").click()
         for p in ("paper", "peer-homography"):             # not run yet: the panel says so and offers it
             assert presets_state(tab)[p] == "not run"
-            page.get_by_text(f"{p}: not computed yet", exact=False).first.wait_for(timeout=10_000)
+            shown_text(page, f"{p}: not computed yet", exact=False).first.wait_for(timeout=10_000)
         for p in ("paper", "peer-homography"):             # one run at a time (the button waits)
             n = len(tab.events)
             page.get_by_role("button", name=f"Compute {p}", exact=True).click()
@@ -208,7 +208,7 @@ def test_presets_side_by_side_stay_in_sync(browser, cache_dir):
             wait_for(lambda p=p: presets_state(tab).get(p) == "map", 600, f"the {p} map")
         pp.draw.wait_idle(120)
         for p in PRESETS_SHOWN:                              # each with its Jaccard (ground truth)
-            page.get_by_text(re.compile(rf"^{re.escape(p)}: threshold .* Jaccard \d\.\d{{3}}")).first.wait_for(
+            shown_text(page, re.compile(rf"^{re.escape(p)}: threshold .* Jaccard \d\.\d{{3}}")).first.wait_for(
                 timeout=10_000)
         assert all(app.models[p].error is None for p in PRESETS_SHOWN)
 
@@ -221,7 +221,7 @@ def test_presets_side_by_side_stay_in_sync(browser, cache_dir):
         pp.draw.wait_idle(120)
         px = (float(tab.pixel[0]), float(tab.pixel[1]))
         assert all(v[0] == ref and v[1] == px for v in pp.shown.values())
-        page.get_by_text(f"point ({px[0]:.0f}, {px[1]:.0f}) marked in all three").wait_for(timeout=10_000)
+        shown_text(page, f"point ({px[0]:.0f}, {px[1]:.0f}) marked in all three").wait_for(timeout=10_000)
 
         # zoomed: the same window around the same pixel in all three
         n = len(tab.events)

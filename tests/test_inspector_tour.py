@@ -19,7 +19,7 @@ from urllib.parse import parse_qs, urlparse
 import numpy as np
 import pytest
 
-from browserkit import browser, settled, wait_event, wait_for  # noqa: F401 (a fixture)
+from browserkit import browser, settled, wait_event, wait_for, shown_text  # noqa: F401 (a fixture)
 from conftest import SAMPLE_SETS
 
 
@@ -72,10 +72,10 @@ def open_tab(browser, app, url=None, viewport=(1366, 768)):
     page = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}).new_page()
     before = set(app.sessions)
     page.goto(url or app.url)
-    page.get_by_text("Threshold", exact=True).first.wait_for(timeout=60_000)
+    shown_text(page, "Threshold", exact=True).first.wait_for(timeout=60_000)
     wait_for(lambda: set(app.sessions) - before, what="the tab's session")
     tab = app.sessions[(set(app.sessions) - before).pop()]
-    page.get_by_text(re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=900_000)
+    shown_text(page, re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=900_000)
     close = page.locator(".mantine-Notification-closeButton")     # the "software WebGL" toast over the canvas
     if close.count():
         close.first.click()
@@ -121,7 +121,7 @@ def assert_step1_in_3d(page, tab, app):
     assert "Each pyramid is a camera" in tour.md_live.content and app.stems[ref] in tour.md_live.content
     key = cameras_key(tour.panel_width())                # the photos, named, then the colours' key
     assert tour.img_side.visible and np.array_equal(tour.img_side.image[-key.shape[0]:], key)
-    page.get_by_text("Each pyramid is a camera", exact=False).first.wait_for()
+    shown_text(page, "Each pyramid is a camera", exact=False).first.wait_for()
 
 
 def test_tour_walk_keys_and_click(browser, app):
@@ -141,8 +141,8 @@ def test_tour_walk_keys_and_click(browser, app):
             wait_event(tab, "tour shown", lambda v: v == k, after=n)
             settled_3d(tab)
         st = STEPS[k - 1]
-        page.get_by_text(f"Step {k} of 7: {st.title}").wait_for()
-        page.get_by_text(st.text.split("(")[0].replace("**", "").strip()[:30], exact=False).first.wait_for()
+        shown_text(page, f"Step {k} of 7: {st.title}").wait_for()
+        shown_text(page, st.text.split("(")[0].replace("**", "").strip()[:30], exact=False).first.wait_for()
         assert "§" in st.text
         assert tour.step == k
         if k == 1:                          # the default preset has the set's cameras: they are shown in 3-D
@@ -173,7 +173,7 @@ def test_tour_walk_keys_and_click(browser, app):
     # a focused control keeps its arrow keys: the threshold's number box, then Next by mouse
     box = page.locator(f'[id="{tab.sl_thr._impl.uuid}"]').locator("xpath=../..").locator(
         "input.mantine-NumberInput-input")
-    if page.get_by_text("Threshold", exact=True).first.is_visible():
+    if shown_text(page, "Threshold", exact=True).first.is_visible():
         n = len(tab.events)
         box.focus()
         page.keyboard.press("ArrowRight")
@@ -236,7 +236,7 @@ def test_prepared_link(browser, app):
     wait_event(tab, "prepared")
     wait_event(tab, "tour shown", lambda v: v == 4, timeout=120)
     settled(tab)
-    page.get_by_text("Step 4 of 7").wait_for()
+    shown_text(page, "Step 4 of 7").wait_for()
     assert tab.settings.ref == ref and page.get_by_role("combobox", name="Reference", exact=True).input_value() == stems[ref]
     assert stems.index(off) not in tab.settings.supports and stems.index(sup) in tab.settings.supports
     assert tab.settings.threshold == pytest.approx(0.42)
@@ -251,14 +251,14 @@ def test_prepared_link(browser, app):
     q = parse_qs(urlparse(link).query)
     assert q["ref"] == [stems[ref]] and q["off"] == [off] and q["step"] == ["4"] and q["support"] == [sup]
     assert q["pixel"] == ["100,80"] and float(q["threshold"][0]) == pytest.approx(0.42)
-    page.get_by_text(link).first.wait_for()
+    shown_text(page, link).first.wait_for()
     page.close()
 
 
 def test_bad_link_says_so(browser, app):
     page, tab = open_tab(browser, app, app.url + "?ref=no_such_photo&step=3")
     wait_event(tab, "prepared")
-    page.get_by_text(re.compile("no photo no_such_photo")).wait_for()
+    shown_text(page, re.compile("no photo no_such_photo")).wait_for()
     assert tab.tour.step == 3
     page.close()
 
@@ -292,7 +292,7 @@ def test_tour_step1_follows_the_cameras(browser, app):
     assert rgb.shape[0] > 200 and rgb.shape[1] > 400 and rgb.std() > 10
     assert np.array_equal(tab.scene_img.image, rgb)
     assert "`paper` preset has no cameras" in tour.md_live.content
-    page.get_by_text("preset has no cameras for the set", exact=False).first.wait_for()
+    shown_text(page, "preset has no cameras for the set", exact=False).first.wait_for()
 
     # back to default: the cameras again, at the next visit of step 1
     n = len(tab.events)
