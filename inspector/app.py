@@ -5,6 +5,9 @@ asked for) and the shared `TermCache`. Every browser tab is a `Session` with its
 (`client.gui`), scene (`client.scene`) and state; its callbacks only record the new state and
 ask a `Redrawer` to draw, and the redrawer always draws the latest state, so rapid slider moves
 never queue up stale redraws. A tab that disconnects stops its redrawers and is forgotten.
+The reference is chosen in the Reference dropdown or by a click on its thumbnail in the picker
+under it (picker.py; the click sets the dropdown); the reference shown is the one whose pairs the
+run computes next (SetModel.prefer).
 
 The photo stays put: viser's camera orbits on a left drag over empty space and on arrow keys.
 Keys pressed on a focused control are kept from reaching the camera (a small key listener in
@@ -46,6 +49,7 @@ from pipeline.params import PRESETS, get_preset
 from . import compose, render
 from . import geometry_view as gv
 from .memory import limit_malloc_arenas
+from .picker import Picker, Thumbnails
 from .tour import Tour
 from .gallery_view import GalleryView
 from .side_by_side import PresetPanels
@@ -194,6 +198,7 @@ class Inspector:
         self.stems = [p.stem for p in photo_set.photos]
         self.gts = gts                                     # stem -> (H, W) uint8 at original size
         self.gts_working = {s: gt_at_working(g, photo_set.photos[self.stems.index(s)].size) for s, g in gts.items()}
+        self.thumbs = Thumbnails([p.rgb for p in photo_set.photos], self.stems)     # the picker's, made once
         self.cache = cache
         self.out_dir = out_dir
         self.max_side = max_side
@@ -369,6 +374,7 @@ class Session:
         self.dd_ref = gui.add_dropdown("Reference", options=app.stems, initial_value=app.stems[s.ref],
                                        hint="The photo whose moving regions are shown; its supports are the other "
                                             "photos whose geometry with it can be trusted (§3).")
+        self.picker = Picker(self, app.thumbs)          # the same choice, by thumbnail (picker.py)
         self.dd_preset = gui.add_dropdown("Preset", options=list(PRESETS), initial_value=s.preset, hint=HINT_PRESET)
         self.dd_view = gui.add_dropdown("Main view", options=[PHOTO_VIEW, GEOMETRY_VIEW], initial_value=PHOTO_VIEW,
                                         hint=HINT_VIEW)
@@ -557,6 +563,7 @@ class Session:
         with self._state_lock:
             self.settings = dataclasses.replace(self.settings, ref=ref)
             self.settings = self._current_settings()
+        self.app.model(self.settings.preset).prefer(ref)    # its pairs are computed next
         self._clear(keep_pixel=False)
         self.fast.request("status", "main", "supports")
         self.slow.request("sweep", "setbest")
@@ -578,6 +585,7 @@ class Session:
         self.cb_refine.value = fresh.refine
         self._preset_controls(preset)
         self.ready_count = -1
+        self.app.model(preset).prefer(self.settings.ref)
         self.model_changed(self.app.model(preset))
         self.fast.request("status", "main", "supports")
         self.slow.request("sweep", "pixel", "setbest")
@@ -1064,8 +1072,17 @@ class Session:
             what = {"pairs": "Matching pairs", "geometry": "Estimating geometry",
                     "features": "Finding features", "screen": "Choosing which pairs to compare"}.get(stage, "Starting")
             text = f"{what}: {done} / {total} ({model.preset} preset). Maps fill in as pairs finish."
-        if model.warnings:
-            text += "\n\n" + "\n".join(f"- {w}" for w in model.warnings[-3:])
+        # photos without a usable pair in one line, by name (the picker marks them "no map"); with
+        # 100 photos their warnings, a full path each, filled the panel's top
+        others = [w for w in model.warnings if "no usable pair" not in w]
+        lines = [f"- {w}" for w in others[-3:]]
+        sups = model.supports
+        lonely = [self.app.stems[i] for i, sp in enumerate(sups) if not sp] if sups is not None else []
+        if lonely:
+            lines.append(f"- no usable pair, so no map (no other photo has trustworthy geometry with it): "
+                         f"{', '.join(lonely)}")
+        if lines:
+            text += "\n\n" + "\n".join(lines)
         with self._pub:
             if epoch != self._epoch:
                 return
@@ -1074,11 +1091,16 @@ class Session:
                 self.progress.value = 100.0 * done / total if total else 0.0
             self.md_status.content = text
             self._draw_support_boxes(model)
+            if self.picker.draw(model):
+                self._record("picker", self.settings.ref)
 
     def _draw_support_boxes(self, model: SetModel) -> None:
-        """One checkbox per other photo: ready pairs can be toggled; rejected ones are disabled
-        with the reason; pairs still computing are disabled until they finish. The head counts
-        what is on: "6 of 9 supports on"."""
+        """One checkbox per support of the reference: ready pairs can be toggled; pairs still
+        computing are disabled until they finish. The other photos are listed, not boxed (with
+        100 photos, 91 boxes that can never be ticked were a wall of the panel and 99 GUI elements
+        made again on every change of reference): the rejected ones with the geometry test's
+        reason (grouped by reason when there are many), those the cap left out by name. The head
+        counts what is on: "6 of 9 supports on"."""
         ref = self.settings.ref
         if self._box_ref != ref:
             for b in self._boxes.values():
@@ -1086,23 +1108,26 @@ class Session:
             self._boxes = {}
             self._box_ref = ref
         off = self.unticked.get(ref, set())
-        reasons, unused = [], []
+        reasons: dict[str, list[str]] = {}
+        unused = []
         for j in range(self.n):
             if j == ref:
                 continue
             state, why = model.pair_state(ref, j)
             stem = self.app.stems[j]
-            hint = {"ready": PAIR_HINTS.get(why, why), "computing": "this pair is being computed",
-                    "rejected": f"rejected by the geometry test: {why}", "unused": why,
-                    "unknown": "waiting for its pair"}[state]
-            text = {"ready": stem + (" · homography" if why == "homography" else ""),
-                    "computing": f"{stem} · computing…", "rejected": f"{stem} · rejected",
-                    "unused": f"{stem} · not used", "unknown": f"{stem} · waiting"}[state]
-            value = state not in ("rejected", "unused") and j not in off
             if state == "rejected":
-                reasons.append(f"- **{stem}**: {why}")
+                reasons.setdefault(why, []).append(stem)
+                continue
             if state == "unused":
                 unused.append(stem)
+                continue
+            if model.supports is None:          # nothing to box before the support sets are known
+                continue
+            hint = {"ready": PAIR_HINTS.get(why, why), "computing": "this pair is being computed",
+                    "unknown": "waiting for its pair"}[state]
+            text = {"ready": stem + (" · homography" if why == "homography" else ""),
+                    "computing": f"{stem} · computing…", "unknown": f"{stem} · waiting"}[state]
+            value = j not in off
             box = self._boxes.get(j)
             if box is None:
                 with self.f_sup:
@@ -1117,8 +1142,6 @@ class Session:
                     box.hint = hint
                 if box.disabled != (state != "ready"):
                     box.disabled = state != "ready"
-                if state in ("rejected", "unused") and box.value:
-                    box.value = False
         stem = self.app.stems[ref]
         if model.supports is None:
             head = f"Supports for {stem}: {COMPUTING}"
@@ -1134,7 +1157,7 @@ class Session:
             head += "."
         if unused:
             head += f"\n\nNot used (only the best {len(model.supports[ref])} are kept): {', '.join(unused)}."
-        self.md_sup.content = head + ("\n\nRejected by the geometry test:\n" + "\n".join(reasons) if reasons else "")
+        self.md_sup.content = head + rejected_markdown(reasons, self.app.stems)
 
     def _draw_eval(self, ref: int, dyn: np.ndarray | None, threshold: float, sc: Score | None) -> None:
         stem = self.app.stems[ref]
@@ -1416,6 +1439,26 @@ class Session:
             self.md_export.content = (f"Recorded {stem}: [open the Rerun viewer]({web.url}) (served on this "
                                       "machine's loopback only; the viewer takes a few seconds to load).")
         self._record("rerun", web.url)
+
+
+def rejected_markdown(reasons: dict[str, list[str]], order: list[str] | None = None,
+                      per_photo_up_to: int = 12) -> str:
+    """The photos rejected by the geometry test, by reason (reason -> stems): one line per photo
+    when there are few, else one line per kind of reason (its words before the figures) with
+    its photos, in the order of `order` (the set's stems)."""
+    n = sum(len(v) for v in reasons.values())
+    if not n:
+        return ""
+    if n <= per_photo_up_to:
+        lines = [f"- **{stem}**: {why}" for why, stems in reasons.items() for stem in stems]
+        return "\n\nRejected by the geometry test:\n" + "\n".join(lines)
+    kinds: dict[str, list[str]] = {}
+    for why, stems in reasons.items():
+        kinds.setdefault(why.split(" (")[0].split(":")[0], []).extend(stems)
+    rank = {stem: k for k, stem in enumerate(order or [])}
+    lines = [f"- {kind} ({len(stems)}): {', '.join(sorted(stems, key=lambda x: (rank.get(x, 0), x)))}"
+             for kind, stems in sorted(kinds.items(), key=lambda kv: -len(kv[1]))]
+    return f"\n\nRejected by the geometry test ({n} photos, by kind of reason):\n" + "\n".join(lines)
 
 
 def _noev_label(mode: str) -> str:

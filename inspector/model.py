@@ -2,6 +2,8 @@
 
 `SetModel` runs the pipeline (`run.detect_set`) for one preset in a background thread; pair
 results become visible as they finish (`snapshot()`), so the page is usable while work goes on.
+The reference a tab shows is `prefer`red: its pairs are the next handed to the workers, and
+`reference_states` says per photo whether its map is ready.
 `TermCache` keeps each support's Eq. 3 term (aggregate.support_log_odds of P(x|I_s)) keyed by
 everything it depends on; a change of supports or threshold is then a sum of cached arrays, and
 a change of remap or weights recomputes only the terms of the current reference.
@@ -93,6 +95,8 @@ class SetModel:
         from pipeline.store import PairStore
         self.results = PairStore(cache)       # pair results; the most recently used stay in memory
         self.first_ref: int | None = None
+        self.preferred: int | None = None     # the reference whose pairs go next (the last one a tab showed)
+        self.order: list[tuple[int, int]] = []      # pairs computed by this run, in the order they finished
         self.seconds = 0.0
         self._lock = threading.Lock()
         self._listeners: list[Callable[["SetModel"], None]] = []
@@ -133,12 +137,14 @@ class SetModel:
             return self.first_ref
 
         def on_pair(ij):                     # detect_set has put it in self.results
+            if self.progress[0] == "pairs":  # computed now (cached pairs arrive before the stage's progress)
+                self.order.append(ij)
             self._notify()
 
         try:
             detect_set(self.photo_set, self.params, self.cache, workers=self.workers, progress=progress,
                        warn=self.warnings.append, on_geometry=on_geometry, on_pair=on_pair, cancel=self._cancel,
-                       store=self.results)
+                       store=self.results, prefer=lambda: self.preferred)
             self.status = "done"
         except Cancelled:
             self.status = "cancelled"
@@ -148,6 +154,35 @@ class SetModel:
             self.status, self.error = "failed", f"{type(e).__name__}: {e}"
         self.seconds = time.perf_counter() - t0
         self._notify()
+
+    def prefer(self, ref: int) -> None:
+        """Compute reference `ref`'s pairs next (those not started yet; the run's order after them)."""
+        self.preferred = ref
+
+    def reference_states(self) -> list["RefState"] | None:
+        """Per photo, how far its map is (None before the support sets are known)."""
+        with self._lock:
+            supports = self.supports
+        if supports is None:
+            return None
+        done = [0] * len(supports)
+        for i, _j in list(self.results):
+            done[i] += 1
+        running = self.status in ("waiting", "running")
+        nxt = self.preferred if self.preferred is not None else self.first_ref
+        out = []
+        for i, sups in enumerate(supports):
+            k, d = len(sups), min(done[i], len(sups))
+            if not k:
+                state = "no map"
+            elif d == k:
+                state = "ready"
+            elif not running:
+                state = "incomplete"
+            else:
+                state = "computing" if d or i == nxt else "queued"
+            out.append(RefState(k, d, state))
+        return out
 
     def cancel(self) -> None:
         self._cancel.set()
@@ -180,6 +215,17 @@ class SetModel:
                 self._snap = (n, assemble(self.photo_set, self.params, self.pairs, self.supports, self.results.view(),
                                           cameras=self.cameras))
             return self._snap[1]
+
+
+@dataclass(frozen=True)
+class RefState:
+    """How far one photo's map is: supports (after the cap), pairs ready of them, and state:
+    "ready" (all its pairs), "computing" (some ready, or next in line), "queued" (none yet),
+    "no map" (no support), "incomplete" (the run stopped before its last pair)."""
+
+    supports: int
+    ready: int
+    state: str
 
 
 def first_reference(supports: list[list[int]]) -> int:
