@@ -1070,7 +1070,8 @@ class Session:
             text = f"Ready: {len(model.results)} pairs ({model.preset} preset) in {model.seconds:.1f} s."
         else:
             what = {"pairs": "Matching pairs", "geometry": "Estimating geometry",
-                    "features": "Finding features", "screen": "Choosing which pairs to compare"}.get(stage, "Starting")
+                    "features": "Finding features", "screen": "Choosing which pairs to compare",
+                    "maps": "Making each photo's map"}.get(stage, "Starting")
             text = f"{what}: {done} / {total} ({model.preset} preset). Maps fill in as pairs finish."
         # photos without a usable pair in one line, by name (the picker marks them "no map"); with
         # 100 photos their warnings, a full path each, filled the panel's top

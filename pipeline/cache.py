@@ -75,9 +75,9 @@ def _resolve(owner: type, hint: Any) -> type:
 
 
 def to_bytes(obj: Any, float16: tuple[str, ...] = (), delta: tuple[str, ...] = ()) -> bytes:
-    """A dataclass (nested ones too) as npz bytes. float16: fields stored as float16; delta:
-    uint8 fields stored as differences along their last axis (mod 256), which deflate packs
-    better and faster (a cost volume, smooth along its planes: 61 % -> 48 % of its size)."""
+    """A dataclass (nested ones too) as an npz in a zstd frame. float16: fields stored as float16;
+    delta: uint8 fields stored as differences along their last axis (mod 256), which pack better
+    (a cost volume, smooth along its planes: 46 % -> 40 % of its size)."""
     arrays: dict[str, np.ndarray] = {}
     meta: dict[str, Any] = {}
     _flatten(obj, "", arrays, meta)
@@ -91,18 +91,31 @@ def to_bytes(obj: Any, float16: tuple[str, ...] = (), delta: tuple[str, ...] = (
         meta["__delta__"] = deltas
     arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     buf = io.BytesIO()
-    # np.savez_compressed's deflate level 6 took 0.25 s per swept pair; level 1 is 4x faster and the
-    # entries (uint8 cost volumes, float16 maps) are barely larger. np.load reads either.
-    import zipfile
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
-        for name, a in arrays.items():
-            with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
-                np.lib.format.write_array(f, np.asanyarray(a), allow_pickle=False)
-    return buf.getvalue()
+    # An uncompressed npz in one zstd frame. Deflate (level 1) took 0.3 s of CPU per swept pair, half
+    # the pair's own work; zstd level 1 takes 0.06 s, reads back 5x faster, and is a little smaller.
+    # from_bytes still reads the deflated entries written before (plain npz).
+    np.savez(buf, **arrays)
+    return _zstd().ZstdCompressor(level=ZSTD_LEVEL).compress(buf.getbuffer())
+
+
+ZSTD_LEVEL = 1
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"          # a zstd frame's first bytes (an npz begins "PK")
+
+
+def _zstd():
+    import zstandard
+    return zstandard
+
+
+def _npz(data: bytes):
+    """The npz inside an entry's payload: zstd-framed (this format) or a plain deflated npz (before)."""
+    if bytes(data[:4]) == _ZSTD_MAGIC:
+        data = _zstd().ZstdDecompressor().decompress(data)
+    return np.load(io.BytesIO(data), allow_pickle=False)
 
 
 def from_bytes(cls: type, data: bytes, float32: tuple[str, ...] = ()) -> Any:
-    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+    with _npz(data) as z:
         meta = json.loads(bytes(z["__meta__"]).decode())
         arrays = {k: z[k] for k in z.files if k != "__meta__"}
     for k in meta.pop("__delta__", []):

@@ -1,9 +1,30 @@
 """Compiled kernels (numba), built on first use: importing the pipeline stays fast, and a worker
-that never needs a kernel never compiles it (the compiled code is cached on disk, cache=True)."""
+that never needs a kernel never compiles it (the compiled code is cached on disk, cache=True).
+
+Kernels with `parallel=True` may be called from several threads at once (the last stage makes
+photos' maps in threads; the inspector's tabs fuse in theirs). numba's OpenMP and TBB threading
+layers allow that; its fallback "workqueue" layer aborts the process on a concurrent launch, so
+where it is the one loaded, calls take turns.
+"""
 
 from __future__ import annotations
 
+import threading
 from typing import Callable
+
+_TURNS = threading.Lock()
+_layer_safe: bool | None = None       # None until a parallel kernel has run and the layer is known
+
+
+def _threadsafe_layer() -> bool | None:
+    global _layer_safe
+    if _layer_safe is None:
+        import numba
+        try:
+            _layer_safe = numba.threading_layer() != "workqueue"
+        except ValueError:            # no parallel kernel has run yet
+            return None
+    return _layer_safe
 
 
 class LazyKernel:
@@ -11,8 +32,14 @@ class LazyKernel:
 
     def __init__(self, make: Callable[[], Callable]):
         self._make, self._fn = make, None
+        self._make_lock = threading.Lock()
 
     def __call__(self, *args):
         if self._fn is None:
-            self._fn = self._make()
-        return self._fn(*args)
+            with self._make_lock:
+                if self._fn is None:
+                    self._fn = self._make()
+        if _threadsafe_layer():
+            return self._fn(*args)
+        with _TURNS:
+            return self._fn(*args)

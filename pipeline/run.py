@@ -13,7 +13,7 @@ import multiprocessing as mp
 import os
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, as_completed, wait
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
@@ -860,16 +860,30 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     result = assemble(photo_set, params, pairs, supports, results, keypoints, timings, warnings, cameras)
     run_key = cache_mod.key("run", MAPS_VERSION, json.dumps(params.to_dict(), sort_keys=True, default=str),
                             *(f"{i},{j}:{pkey[(i, j)]}" for i, j in sorted(pkey)))
-    for i in refs:
-        if supports[i]:
-            mkey = cache_mod.key("dynamic", photos[i].key, run_key, ",".join(map(str, supports[i])))
-            dyn = cache.load("dynamic", mkey, lambda d: np.load(io.BytesIO(d), allow_pickle=False))
-            if dyn is None or dyn.shape != tuple(photos[i].size) or dyn.dtype != np.float32:
-                dyn = result.dynamic_prob(i, supports[i])
-                buf = io.BytesIO()
-                np.save(buf, np.ascontiguousarray(dyn, np.float32))
-                cache.put("dynamic", mkey, buf.getvalue())
-            result.dynamic[i] = dyn
+
+    def photo_map(i: int) -> np.ndarray:
+        mkey = cache_mod.key("dynamic", photos[i].key, run_key, ",".join(map(str, supports[i])))
+        dyn = cache.load("dynamic", mkey, lambda d: np.load(io.BytesIO(d), allow_pickle=False))
+        if dyn is None or dyn.shape != tuple(photos[i].size) or dyn.dtype != np.float32:
+            dyn = result.dynamic_prob(i, supports[i])
+            buf = io.BytesIO()
+            np.save(buf, np.ascontiguousarray(dyn, np.float32))
+            cache.put("dynamic", mkey, buf.getvalue())
+        return dyn
+
+    # photos in threads, `workers` at a time: the fusion's and the smoothing's compiled passes, the
+    # box filters and the big numpy passes all release the GIL (the pool's workers are idle now)
+    todo_maps = [i for i in refs if supports[i]]
+    with ThreadPoolExecutor(max(1, min(workers, len(todo_maps)))) as pool:
+        futs = {pool.submit(photo_map, i): i for i in todo_maps}
+        try:
+            for k, fut in enumerate(as_completed(futs)):
+                _check(cancel)
+                result.dynamic[futs[fut]] = fut.result()
+                progress("maps", k + 1, len(todo_maps))
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)      # those not started never start
+            raise
     timings["aggregate_s"] = time.perf_counter() - t2
     result.cache_hits = cache.hits - hits0
     result.cache_misses = cache.misses - miss0

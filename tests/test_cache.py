@@ -128,3 +128,25 @@ def test_a_volume_stored_as_differences_comes_back_exactly():
     back = from_bytes(SweepPair, to_bytes(pair, delta=("cost",)))
     assert back.cost.dtype == np.uint8 and np.array_equal(back.cost, cost)
     assert from_bytes(SweepPair, to_bytes(pair)).cost.tobytes() == cost.tobytes()     # without, as before
+
+
+def test_entries_are_zstd_framed_and_older_deflated_entries_still_read():
+    """The payload is one zstd frame; an entry written before (a plain deflated npz, as
+    np.savez_compressed makes) decodes to the same result."""
+    import io
+    import json
+
+    from pipeline.cache import from_bytes, to_bytes
+    from pipeline.sweep import SweepPair
+    cost = np.arange(2 * 3 * 7, dtype=np.uint8).reshape(2, 3, 7)
+    pair = SweepPair(2, 5, cost, np.ones((7, 4)), 0.25)
+    data = to_bytes(pair)
+    assert data[:4] == b"\x28\xb5\x2f\xfd"
+    meta = {"ref": 2, "sup": 5, "seconds": 0.25, "kind": "plane"}
+    old = io.BytesIO()
+    np.savez_compressed(old, cost=cost, planes=np.ones((7, 4)), __meta__=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    assert old.getvalue()[:2] == b"PK"
+    for blob in (data, old.getvalue()):
+        back = from_bytes(SweepPair, blob)
+        assert (back.ref, back.sup, back.seconds) == (2, 5, 0.25)
+        assert np.array_equal(back.cost, cost) and np.array_equal(back.planes, np.ones((7, 4)))

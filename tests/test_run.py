@@ -36,3 +36,25 @@ def test_two_inline_runs_of_different_presets_at_once_equal_their_runs_alone(tmp
     for name in presets:
         for a, b in zip(alone[name], together[name]):
             assert (a is None and b is None) or np.array_equal(a, b)
+
+
+def test_maps_made_in_threads_equal_maps_made_one_by_one(tmp_path):
+    """The last stage makes the photos' maps `workers` at a time, in threads: the same maps as
+    one by one, and one "maps" progress step per photo with a map."""
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+
+    params = get_preset("default").replace(max_side=160)
+    ps = load_set(SAMPLE_SETS / "tabletop_ball", params.max_side)
+    one = detect_set(ps, params, PairCache(tmp_path / "one"), workers=1)
+    steps = []
+    two = detect_set(ps, params, PairCache(tmp_path / "two"), workers=2,
+                     progress=lambda stage, done, total: steps.append((done, total)) if stage == "maps" else None)
+    with_map = sum(1 for s in two.supports if s)
+    assert with_map >= 2 and sorted(steps) == [(k, with_map) for k in range(1, with_map + 1)]
+    for a, b in zip(one.dynamic, two.dynamic):
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert np.array_equal(a, b)
