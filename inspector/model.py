@@ -128,8 +128,9 @@ class SetModel:
 
         def on_geometry(pairs, supports, cameras):
             with self._lock:
-                self.pairs, self.supports, self.cameras = pairs, supports, cameras
+                # first_ref before supports: a reader that sees the supports (unlocked) sees it too
                 self.first_ref = first_reference(supports)
+                self.pairs, self.supports, self.cameras = pairs, supports, cameras
             self._notify()
             while self.hold is not None and not self.hold.wait(0.1):
                 if self._cancel.is_set():
