@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+import zstandard
 
 from .params import digest
 
@@ -95,22 +96,17 @@ def to_bytes(obj: Any, float16: tuple[str, ...] = (), delta: tuple[str, ...] = (
     # the pair's own work; zstd level 1 takes 0.06 s, reads back 5x faster, and is a little smaller.
     # from_bytes still reads the deflated entries written before (plain npz).
     np.savez(buf, **arrays)
-    return _zstd().ZstdCompressor(level=ZSTD_LEVEL).compress(buf.getbuffer())
+    return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(buf.getbuffer())
 
 
 ZSTD_LEVEL = 1
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"          # a zstd frame's first bytes (an npz begins "PK")
 
 
-def _zstd():
-    import zstandard
-    return zstandard
-
-
 def _npz(data: bytes):
     """The npz inside an entry's payload: zstd-framed (this format) or a plain deflated npz (before)."""
     if bytes(data[:4]) == _ZSTD_MAGIC:
-        data = _zstd().ZstdDecompressor().decompress(data)
+        data = zstandard.ZstdDecompressor().decompress(data)
     return np.load(io.BytesIO(data), allow_pickle=False)
 
 

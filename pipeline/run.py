@@ -92,12 +92,16 @@ class SetResult:
         p = params or self.params
         sp = p.sweep
         key = (i, sw, sp.best_share, sp.same_spot_px, sp.smooth_p1, sp.smooth_p2, sp.smooth_paths, sp.smooth_unseen)
-        if key not in self._fused:
+        f = self._fused.get(key)
+        if f is None:
+            # the result is returned from this local: another thread (photos' maps are made in
+            # threads, the inspector's tabs fuse in theirs) may clear the cache in between
+            pairs = [self.pair_results[(i, j)].sweep for j in sw]
+            f = fuse(pairs, sp, self.same_spot(i, sw, p))
             if len(self._fused) > 32:
                 self._fused.clear()
-            pairs = [self.pair_results[(i, j)].sweep for j in sw]
-            self._fused[key] = fuse(pairs, sp, self.same_spot(i, sw, p))
-        return self._fused[key]
+            self._fused[key] = f
+        return f
 
     def same_spot(self, i: int, supports, params: Params | None = None) -> np.ndarray:
         """(S,) bool for the swept `supports` of photo i: taken from i's own spot (a direct
