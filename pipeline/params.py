@@ -50,6 +50,8 @@ class GeometryParams:
     recon_focal_agree: float = 0.15    # a camera whose focal length differs more between the runs is dropped
     recon_max_reproj_px: float = 1.5   # observations reprojecting farther after the robust refinement are dropped
     recon_focal_range: tuple[float, float] = (0.3, 4.0)  # plausible focal length / image side for a phone
+    recon_min_registered: int = 4     # a model of three cameras cannot check itself: each camera answers to two
+                                       # others only (courtyard_static: a 14 % focal error passed); two-view below
     recon_min_points: int = 20         # a registered photo must see this many reconstructed points
     recon_agree_px: float = 2.0        # median distance of a pair's own matches to the cameras' epipolar lines
     recon_min_covisible: int = 12      # a reconstruction pair needs this many points seen by both cameras,

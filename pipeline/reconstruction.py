@@ -275,14 +275,18 @@ def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParam
             if len(xi):
                 lines = epipolar_lines(alt.F(i, j), xi)
                 spread[i, j] = float(np.percentile(np.abs(np.sum(lines[:, :2] * yj, axis=1) + lines[:, 2]), 90))
-    if reg.sum() < 3:
-        reasons = [r or "fewer than three photos passed the reconstruction's checks" for r in reasons]
+    if reg.sum() < p.recon_min_registered:
+        reasons = [r or _too_few(p) for r in reasons]
         reg[:] = False
     nan3 = np.full((3, 3), np.nan)
     K, R, C = cams.K.copy(), cams.R.copy(), cams.C.copy()
     K[~reg], R[~reg], C[~reg] = nan3, nan3, np.nan
     return dataclasses.replace(cams, registered=reg, K=K, R=R, C=C, reasons=tuple(reasons),
                                depth_range=np.where(reg[:, None], cams.depth_range, np.nan)), spread
+
+
+def _too_few(p: GeometryParams) -> str:
+    return f"fewer than {p.recon_min_registered} photos passed the reconstruction's checks"
 
 
 def _robust_refinement(rec, max_px: float, rounds: int = 2) -> None:
@@ -407,9 +411,8 @@ def _check(cams: SetCameras, pairs: dict, sizes, p: GeometryParams, n_models: in
         if evaluated[k] >= 2 and bad[k] > evaluated[k] / 2:
             reg[k], reasons[k] = False, (f"its camera disagrees with its own matches ({bad[k]} of {evaluated[k]} "
                                          f"pairs off by more than {p.recon_agree_px:g} px)")
-    if reg.sum() < 3:
-        why = "fewer than three photos passed the reconstruction's checks"
-        reasons = [r or why for r in reasons]
+    if reg.sum() < p.recon_min_registered:
+        reasons = [r or _too_few(p) for r in reasons]
         reg[:] = False
     nan3 = np.full((3, 3), np.nan)
     K, R, C = cams.K.copy(), cams.R.copy(), cams.C.copy()

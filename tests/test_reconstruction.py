@@ -1,6 +1,7 @@
 """The set's cameras from one reconstruction (pipeline/reconstruction.py): known answers on a small
 rendered set, the two-view fallback for a photo that cannot register, the COLMAP export read back."""
 
+import dataclasses
 import json
 import shutil
 
@@ -75,6 +76,32 @@ def test_a_photo_that_cannot_register_falls_back_to_two_view(tmp_path):
     assert res.cameras.n_registered >= 5
     assert any("zz_other" in w and "two-view" in w for w in warnings)
     assert all(not res.pairs[(k, j)].ok for j in range(len(ps.photos)) if j != k)
+
+
+def test_three_cameras_are_not_enough_to_be_trusted(tmp_path):
+    """A model of three cameras cannot check itself (each camera answers to two others only): a set
+    of three photos that reconstructs keeps two-view geometry for every pair, with the reason said."""
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+    root = tmp_path / "three"
+    root.mkdir()
+    for f in sorted((SAMPLE_SETS / "tabletop_ball" / "images").iterdir())[:3]:
+        shutil.copy(f, root / f.name)
+    ps = load_set(root, 320)
+    params = get_preset("default").replace(max_side=320)
+    warnings = []
+    res = detect_set(ps, params, PairCache(None), workers=1, only_refs=[], warn=warnings.append)
+    assert res.cameras.n_registered == 0
+    assert all("fewer than 4 photos" in r or "not registered" in r for r in res.cameras.reasons)
+    assert any("no reconstruction of the set" in w for w in warnings)
+    admitted = [g for g in res.pairs.values() if g.ok]
+    assert admitted and all(g.source in ("two-view", "homography") for g in admitted)
+    # the rule is the setting's: with three allowed, the same photos do get their cameras
+    three = params.replace(geometry=dataclasses.replace(params.geometry, recon_min_registered=3))
+    res3 = detect_set(ps, three, PairCache(None), workers=1, only_refs=[])
+    assert res3.cameras.n_registered == 3
 
 
 def test_colmap_export_reads_back(recon_run, tmp_path):
