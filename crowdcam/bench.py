@@ -106,6 +106,11 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
                   f"{row['s_per_pair']:>7.2f} {row['warm_s']:>7.2f} "
                   f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} {thr:>5} "
                   f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
+            by_source = (row.get("f_precision") or {}).get("by_source") or {}
+            if len(by_source) > 1 or any(v["share_median_below_2px"] not in (None, 1.0) or v["n_p90_above_10px"]
+                                         for v in by_source.values()):
+                print(f"{'':<20} F by source: " + "; ".join(f"{src} {_f_cell(v)} of {v['n_measured']}"
+                                                         for src, v in by_source.items()))
             if row.get("f_precision_note"):
                 print(f"{'':<20} F precision not measured: {row['f_precision_note']}")
             sys.stdout.flush()

@@ -128,9 +128,10 @@ def f_precision(result, step: int = 4) -> dict | None:
 
     For every admitted epipolar ordered pair (ref i, support j; status "ok" with an F; homography
     pairs are skipped): the median and 90th percentile of epipolar_errors over the static points
-    photo i sees. Returns {"pairs": [{"ref", "sup", "n_points", "median_px", "p90_px"}, ...],
-    "n_pairs", "n_measured", "share_median_below_2px", "n_p90_above_10px", "median_of_medians_px"}
-    (shares over the measured pairs; None where nothing was measured), or None when the set has no
+    photo i sees. Returns {"pairs": [{"ref", "sup", "n_points", "median_px", "p90_px", "source",
+    "uncertainty_px"}, ...], "n_pairs", "n_measured", "share_median_below_2px", "n_p90_above_10px",
+    "median_of_medians_px", "by_source": {source: the same four figures over its pairs}} (shares
+    over the measured pairs; None where nothing was measured), or None when the set has no
     cameras.json (real photos). Raises NoTruth when its cameras.json cannot be traced back to the
     generator or does not fit the photos.
     """
@@ -152,11 +153,22 @@ def f_precision(result, step: int = 4) -> dict | None:
     rows = []
     for i, j in pairs:
         a, b = photos[i], photos[j]
-        err = epipolar_errors(result.pairs[(i, j)].F, a, b, cams[a.stem], cams[b.stem], X[a.stem])
-        rows.append(_pair_row(a.stem, b.stem, err))
+        g = result.pairs[(i, j)]
+        err = epipolar_errors(g.F, a, b, cams[a.stem], cams[b.stem], X[a.stem])
+        unc = float(g.uncertainty_px)
+        rows.append(dict(_pair_row(a.stem, b.stem, err), source=g.source,
+                         uncertainty_px=unc if np.isfinite(unc) else None))
+    out = {"pairs": rows, "n_pairs": len(rows), **_shares(rows)}
+    # which geometry the wrong pairs come from: what a researcher looks at first
+    out["by_source"] = {src: _shares([r for r in rows if r["source"] == src])
+                        for src in sorted({r["source"] for r in rows})}
+    return out
+
+
+def _shares(rows: list[dict]) -> dict:
     meds = np.array([r["median_px"] for r in rows if r["n_points"]], float)
     p90s = np.array([r["p90_px"] for r in rows if r["n_points"]], float)
-    return {"pairs": rows, "n_pairs": len(rows), "n_measured": int(len(meds)),
+    return {"n_measured": int(len(meds)),
             "share_median_below_2px": float(np.mean(meds < GOOD_MEDIAN_PX)) if len(meds) else None,
             "n_p90_above_10px": int(np.sum(p90s > BAD_P90_PX)),
             "median_of_medians_px": float(np.median(meds)) if len(meds) else None}

@@ -101,8 +101,10 @@ def _fake_result(ps, cams, bad: tuple[int, int]):
             if i != j:
                 a, b = ps.photos[i], ps.photos[j]
                 cb = _rotated(cams[b.stem], 3.0) if (i, j) == bad else cams[b.stem]
-                pairs[(i, j)] = SimpleNamespace(status=OK, F=true_F(cams[a.stem], cb, a.scale, b.scale))
-    pairs[(0, 2)] = SimpleNamespace(status=HOMOGRAPHY, F=pairs[(0, 2)].F)
+                pairs[(i, j)] = SimpleNamespace(status=OK, F=true_F(cams[a.stem], cb, a.scale, b.scale),
+                                                source="reconstruction" if (i, j) == bad else "two-view",
+                                                uncertainty_px=float("nan") if (i, j) == bad else 0.5)
+    pairs[(0, 2)] = SimpleNamespace(status=HOMOGRAPHY, F=pairs[(0, 2)].F, source="homography", uncertainty_px=1.0)
     supports = [[j for j in range(n) if j != i] for i in range(n)]
     return SimpleNamespace(photo_set=ps, pairs=pairs, supports=supports)
 
@@ -119,6 +121,14 @@ def test_f_precision_summarises_the_admitted_epipolar_pairs(small_set):
     assert max(r["p90_px"] for r in good) < 0.05
     assert fp["median_of_medians_px"] < 0.05
     assert fp["share_median_below_2px"] >= (fp["n_measured"] - 1) / fp["n_measured"]
+    # each row names its geometry's source; the figures per source find the wrong pair's kind
+    assert rows[("cam01", "cam03")]["source"] == "reconstruction"
+    assert rows[("cam01", "cam03")]["uncertainty_px"] is None          # NaN is not JSON
+    assert set(fp["by_source"]) == {"reconstruction", "two-view"}
+    assert fp["by_source"]["two-view"]["n_measured"] == fp["n_measured"] - 1
+    assert fp["by_source"]["two-view"]["median_of_medians_px"] < 0.05
+    assert fp["by_source"]["reconstruction"]["n_measured"] == 1
+    json.dumps(fp, allow_nan=False)
 
 
 def test_no_truth_for_real_photos_or_unknown_sets(small_set, tmp_path):
