@@ -1072,7 +1072,8 @@ class Session:
             what = {"pairs": "Matching pairs", "geometry": "Estimating geometry",
                     "features": "Finding features", "screen": "Choosing which pairs to compare",
                     "maps": "Making each photo's map"}.get(stage, "Starting")
-            text = f"{what}: {done} / {total} ({model.preset} preset). Maps fill in as pairs finish."
+            tail = "Each map shows as soon as it is made." if stage == "maps" else "Maps fill in as pairs finish."
+            text = f"{what}: {done} / {total} ({model.preset} preset). {tail}"
         # photos without a usable pair in one line, by name (the picker marks them "no map"); with
         # 100 photos their warnings, a full path each, filled the panel's top
         others = [w for w in model.warnings if "no usable pair" not in w]

@@ -174,18 +174,25 @@ class PairCache:
         self.root = Path(root) if root is not None else None
         self.max_bytes = max_bytes
         self.warn = warn
-        self.hits = 0
+        self.hits = 0                       # counted under _count_lock: the photos' maps read in threads
         self.misses = 0
         self.healed = 0
         self._size: int | None = None       # bytes under root, scanned on the first write
         self._lock = threading.Lock()
+        self._count_lock = threading.Lock()
         self._mine: set[Path] = set()       # written or read by this run: never evicted by it
 
     def path(self, kind: str, key: str) -> Path | None:
         return None if self.root is None else self.root / kind / key[:2] / f"{key}.npz"
 
+    def _count(self, hits: int = 0, misses: int = 0, healed: int = 0) -> None:
+        with self._count_lock:
+            self.hits += hits
+            self.misses += misses
+            self.healed += healed
+
     def _bad(self, p: Path, why: str) -> None:
-        self.healed += 1
+        self._count(healed=1)
         if self.warn is not None:
             self.warn(f"{p}: bad cache entry ({why}); deleted, it will be recomputed")
         try:
@@ -197,25 +204,25 @@ class PairCache:
         """The payload of an entry, or None (missing, unreadable, or bad: then deleted)."""
         p = self.path(kind, key)
         if p is None or not p.exists():
-            self.misses += 1
+            self._count(misses=1)
             return None
         try:
             data = p.read_bytes()
         except OSError:
-            self.misses += 1
+            self._count(misses=1)
             return None
         try:
             payload = unpack(data)
         except ValueError as e:
             self._bad(p, str(e))
-            self.misses += 1
+            self._count(misses=1)
             return None
         try:
             os.utime(p)                      # least recently *used* goes first
         except OSError:
             pass
         self._mine.add(p)
-        self.hits += 1
+        self._count(hits=1)
         return payload
 
     def has(self, kind: str, key: str) -> bool:
@@ -251,8 +258,7 @@ class PairCache:
         try:
             return decode(data)
         except Exception as e:
-            self.hits -= 1
-            self.misses += 1
+            self._count(hits=-1, misses=1)
             self._bad(self.path(kind, key), f"cannot be decoded: {type(e).__name__}")
             return None
 
