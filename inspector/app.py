@@ -48,7 +48,7 @@ from pipeline.params import PRESETS, get_preset
 
 from . import compose, render
 from . import geometry_view as gv
-from .memory import limit_malloc_arenas
+from crowdcam.memory import limit_malloc_arenas
 from .picker import Picker, Thumbnails
 from .tour import Tour
 from .gallery_view import GalleryView
@@ -192,7 +192,7 @@ class Inspector:
     def __init__(self, photo_set: PhotoSet, gts: dict[str, np.ndarray], cache: PairCache, out_dir: Path,
                  host: str = "127.0.0.1", port: int = 8080, preset: str = "default", max_side: int = 640,
                  workers: int | None = None, hold: threading.Event | None = None):
-        limit_malloc_arenas()              # memory stays flat as tabs come and go (inspector/memory.py)
+        limit_malloc_arenas()              # memory stays flat as tabs come and go (crowdcam/memory.py)
         self.photo_set = photo_set
         self.hold = hold                                   # see SetModel.hold (tests only)
         self.stems = [p.stem for p in photo_set.photos]

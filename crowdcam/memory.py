@@ -1,4 +1,5 @@
-"""Keep the inspector's memory flat as tabs come and go.
+"""Keep the main process's memory flat: the inspector's as tabs come and go, a run's as the
+photos' maps are made in threads after the pair stage.
 
 glibc gives each thread that allocates a malloc arena of its own (up to 8 per core), keeps what
 is freed in it for reuse, and raises its mmap threshold after large blocks are freed, so that
@@ -6,7 +7,9 @@ later large blocks come from (and stay in) the arenas. Every tab has two drawing
 glibc's defaults each tab left about 110 MB of resident memory behind that outlived the tab
 (bench/stress.py, 3 tabs twice over: 293 -> 665 -> 843 MB), while Python and numpy held no more
 than before (tracemalloc). Two arenas and a fixed 1 MB mmap threshold (large arrays always
-mapped, and unmapped when freed): 303 -> 362 -> 409 MB.
+mapped, and unmapped when freed): 303 -> 362 -> 409 MB. `crowdcam detect` and `bench` set the
+same for sets of more than 9 photos (cli.limit_arenas_for): the photos' maps are made in threads after the pair stage, and with glibc's defaults the
+memory the pair stage freed stayed resident while the map threads took arenas of their own.
 """
 
 from __future__ import annotations
