@@ -22,7 +22,7 @@ from pathlib import Path
 
 def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q) -> None:
     try:
-        from crowdcam.cli import limit_arenas_for
+        from crowdcam.memory import limit_arenas_for
         from pipeline.cache import PairCache
         from pipeline.evaluate import score_set, static_false_positive_rate
         from pipeline.loading import load_gts, load_set
@@ -108,11 +108,10 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
                   f"{row['s_per_pair']:>7.2f} {row['warm_s']:>7.2f} "
                   f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} {thr:>5} "
                   f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
-            by_source = (row.get("f_precision") or {}).get("by_source") or {}
-            if len(by_source) > 1 or any(v["share_median_below_2px"] not in (None, 1.0) or v["n_p90_above_10px"]
-                                         for v in by_source.values()):
+            fp = row.get("f_precision")
+            if fp and (fp["share_median_below_2px"] not in (None, 1.0) or fp["n_p90_above_10px"]):
                 print(f"{'':<20} F by source: " + "; ".join(f"{src} {_f_cell(v)} of {v['n_measured']}"
-                                                         for src, v in by_source.items()))
+                                                         for src, v in fp["by_source"].items()))
             if row.get("f_precision_note"):
                 print(f"{'':<20} F precision not measured: {row['f_precision_note']}")
             sys.stdout.flush()

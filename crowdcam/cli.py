@@ -101,17 +101,6 @@ def _table_row(name: str, score) -> str:
 
 
 # ----------------------------------------------------------------------------- commands
-def limit_arenas_for(n_photos: int) -> None:
-    """glibc's malloc limited (crowdcam/memory.py) for sets of more than 9 photos, before the maps'
-    threads start: with its defaults the memory the pair stage freed stayed resident while the map
-    threads took arenas of their own (100 photos cold: 2.31 GB, limited 1.63 GB; target 2 GB).
-    Not below: it makes the maps stage slower (100 photos, maps only: 80 -> 106 s), and small sets
-    stay far under the target either way."""
-    if n_photos > 9:
-        from crowdcam.memory import limit_malloc_arenas
-        limit_malloc_arenas()
-
-
 def cmd_detect(args) -> int:
     from pipeline.loading import is_inside, load_gts, load_set
     from pipeline.output import write_outputs, to_original
@@ -122,6 +111,7 @@ def cmd_detect(args) -> int:
     params = _params(args)
     set_dir = Path(args.set)
     photo_set = load_set(set_dir, params.max_side, warn=rep.warn, gt_dir=Path(args.gt) if args.gt else None)
+    from crowdcam.memory import limit_arenas_for
     limit_arenas_for(len(photo_set.photos))
     out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name
     if is_inside(out, set_dir):

@@ -253,8 +253,6 @@ def _scene_samples(cams: "SetCameras", i: int, j: int, sizes) -> tuple[np.ndarra
 def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParams):
     """Drop the cameras whose focal length the second run puts elsewhere; (n, n) disagreement of
     the pairs' epipolar lines between the runs (px, 90th percentile at the scene's depths)."""
-    import dataclasses
-
     from .geometry import epipolar_lines
     n = len(cams.registered)
     reg = cams.registered.copy()
@@ -275,18 +273,23 @@ def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParam
             if len(xi):
                 lines = epipolar_lines(alt.F(i, j), xi)
                 spread[i, j] = float(np.percentile(np.abs(np.sum(lines[:, :2] * yj, axis=1) + lines[:, 2]), 90))
+    return _keep(cams, reg, reasons, p), spread
+
+
+def _keep(cams: SetCameras, reg: np.ndarray, reasons: list[str], p: GeometryParams) -> SetCameras:
+    """cams with only the photos `reg` registered (the others' cameras NaN, with their reasons);
+    none when fewer than `recon_min_registered` are left: a model of three cameras cannot check
+    itself (each camera answers to two others only)."""
+    import dataclasses
     if reg.sum() < p.recon_min_registered:
-        reasons = [r or _too_few(p) for r in reasons]
-        reg[:] = False
+        why = f"fewer than {p.recon_min_registered} photos passed the reconstruction's checks"
+        reasons = [r or why for r in reasons]
+        reg = np.zeros_like(reg)
     nan3 = np.full((3, 3), np.nan)
     K, R, C = cams.K.copy(), cams.R.copy(), cams.C.copy()
     K[~reg], R[~reg], C[~reg] = nan3, nan3, np.nan
     return dataclasses.replace(cams, registered=reg, K=K, R=R, C=C, reasons=tuple(reasons),
-                               depth_range=np.where(reg[:, None], cams.depth_range, np.nan)), spread
-
-
-def _too_few(p: GeometryParams) -> str:
-    return f"fewer than {p.recon_min_registered} photos passed the reconstruction's checks"
+                               depth_range=np.where(reg[:, None], cams.depth_range, np.nan))
 
 
 def _robust_refinement(rec, max_px: float, rounds: int = 2) -> None:
@@ -376,7 +379,6 @@ def _with_depth_ranges(cams: SetCameras) -> SetCameras:
 
 def _check(cams: SetCameras, pairs: dict, sizes, p: GeometryParams, n_models: int) -> SetCameras:
     """Unregister the photos whose camera the photos themselves contradict (see module doc)."""
-    import dataclasses
     n = len(cams.registered)
     reg = cams.registered.copy()
     reasons = list(cams.reasons)
@@ -411,14 +413,7 @@ def _check(cams: SetCameras, pairs: dict, sizes, p: GeometryParams, n_models: in
         if evaluated[k] >= 2 and bad[k] > evaluated[k] / 2:
             reg[k], reasons[k] = False, (f"its camera disagrees with its own matches ({bad[k]} of {evaluated[k]} "
                                          f"pairs off by more than {p.recon_agree_px:g} px)")
-    if reg.sum() < p.recon_min_registered:
-        reasons = [r or _too_few(p) for r in reasons]
-        reg[:] = False
-    nan3 = np.full((3, 3), np.nan)
-    K, R, C = cams.K.copy(), cams.R.copy(), cams.C.copy()
-    K[~reg], R[~reg], C[~reg] = nan3, nan3, np.nan
-    return dataclasses.replace(cams, registered=reg, K=K, R=R, C=C, reasons=tuple(reasons),
-                               depth_range=np.where(reg[:, None], cams.depth_range, np.nan))
+    return _keep(cams, reg, reasons, p)
 
 
 # ----------------------------------------------------------------------------- uncertainty

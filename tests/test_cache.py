@@ -150,4 +150,3 @@ def test_entries_are_zstd_framed_and_older_deflated_entries_still_read():
         back = from_bytes(SweepPair, blob)
         assert (back.ref, back.sup, back.seconds) == (2, 5, 0.25)
         assert np.array_equal(back.cost, cost) and np.array_equal(back.planes, np.ones((7, 4)))
-
