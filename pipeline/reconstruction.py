@@ -538,6 +538,14 @@ def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[n
                        "homography explains the pair")
             elif unc > p.recon_max_uncertainty_frac * max(sizes[i]):
                 why = f"epipolar lines too uncertain ({unc:.1f} px)"
+            elif not g.ok and not p.recon_rescue_planar and (g.homography_share > p.max_homography_share
+                                                              or 0.0 < g.spread < p.min_spread):
+                # the pair's matches lie on one plane or in one patch: they agree with the cameras' F
+                # there and cannot check it elsewhere, where the two-view F was free as well (arc 0-4,
+                # plaza 0-1: 0.2 px from their matches, 10-40 px off on the rest of the scene)
+                where = "on one plane" if g.homography_share > p.max_homography_share else "in one patch"
+                why = (f"its matches lie {where} ({g.reason}), so they cannot check the cameras' F "
+                       "anywhere else")
             if why is not None:
                 if g.ok:              # the pair's own two-view geometry passed its tests: it stays
                     continue

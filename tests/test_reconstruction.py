@@ -163,3 +163,27 @@ def test_exif_focal_prior(tmp_path):
             assert not warned
         else:
             assert ph.focal_prior_px is None and warned and "ignored" in warned[0]
+
+
+def test_a_planar_pair_is_rescued_only_when_the_setting_says_so(recon_run):
+    """A pair the two-view tests rejected because one homography explains its matches: the
+    cameras' F takes it in by default; with recon_rescue_planar off it stays rejected, saying why."""
+    from pipeline.params import get_preset
+    from pipeline.reconstruction import apply_reconstruction
+    from pipeline.support import REJECTED
+    ps, res = recon_run
+    i, j = next((i, j) for (i, j), g in sorted(res.pairs.items()) if i < j and g.source == "reconstruction")
+    planar = dataclasses.replace(res.pairs[(i, j)], status=REJECTED, source="", homography_share=0.95,
+                                 reason="degenerate F, and residual parallax after the homography is 9.0 px")
+    pairs = dict(res.pairs)
+    pairs[(i, j)], pairs[(j, i)] = planar, planar.reversed()
+    sizes = [p.size for p in ps.photos]
+    geometry = get_preset("default").geometry
+    rescued = apply_reconstruction(pairs, res.cameras, sizes, res.keypoints, geometry)
+    assert rescued[(i, j)].source == "reconstruction" and rescued[(j, i)].ok
+    kept = apply_reconstruction(pairs, res.cameras, sizes, res.keypoints,
+                                dataclasses.replace(geometry, recon_rescue_planar=False))
+    assert not kept[(i, j)].ok and not kept[(j, i)].ok
+    assert "on one plane" in kept[(i, j)].reason and "degenerate F" in kept[(i, j)].reason
+    # pairs that passed their own tests are not touched by the setting
+    assert all(kept[ij].source == rescued[ij].source for ij in pairs if ij not in ((i, j), (j, i)))
