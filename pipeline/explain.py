@@ -237,4 +237,4 @@ def _fused_curve(res, i: int, sw: list[int], gy: int, gx: int) -> np.ndarray:
     pairs = [res.pair_results[(i, k)].sweep for k in sw]
     D = max(p.cost.shape[2] for p in pairs)
     costs = np.stack([np.broadcast_to(p.cost[gy, gx], (D,)) for p in pairs])       # (S, D) uint8
-    return fused_costs(costs, res.same_spot(i, sw), res.params.sweep.best_share)
+    return fused_costs(costs, res.same_spot(i, sw), res.params.sweep.best_share, res.params.sweep.min_agree)

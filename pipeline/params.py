@@ -135,6 +135,8 @@ class SweepParams:
     lightness_mean: bool = True        # SSIM's luminance term on L (False: structure only on L)
     blur: float = 0.0                  # Gaussian sigma (grid px) before comparing
     best_share: float = 0.5            # fuse the best half of the supports that see a point (occlusion)
+    min_agree: int = 1                 # but at least this many where that many see it (of two supports the best
+                                       # half is one look-alike; 2: tabletop 0.53 -> 0.68, facade 0.20 -> 0.11)
     same_spot_px: float = 0.0          # supports whose match moves less than this over the depth range (working
                                        # px; shots from the reference's spot) always count: 0 = none are pinned
     smooth_p2: float = 0.0             # > 0: the plane per pixel by semi-global regularisation of the fused
@@ -189,8 +191,8 @@ class Params:
 
 
 # SweepParams fields of the per-reference fusion and calibration, not of a pair's cost volume
-SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "same_spot_px", "smooth_p2", "smooth_p1",
-                "smooth_paths", "smooth_unseen", "calib_slope", "calib_centre", "weight")
+SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "min_agree", "same_spot_px", "smooth_p2",
+                "smooth_p1", "smooth_paths", "smooth_unseen", "calib_slope", "calib_centre", "weight")
 
 # GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
 POST_GEOMETRY = ("two_view_max_uncertainty_frac",)

@@ -270,13 +270,14 @@ def depth_span_px(cam_ref: tuple, cam_sup: tuple, near: float, size: tuple[int, 
     return float(np.percentile(d, 90))
 
 
-def fused_costs(costs: np.ndarray, same_spot: np.ndarray, share: float) -> np.ndarray:
+def fused_costs(costs: np.ndarray, same_spot: np.ndarray, share: float, min_agree: int = 1) -> np.ndarray:
     """The fusion of one pixel at every plane, in numpy (the compiled kernel's definition, for one
     pixel: explain.py and the tests).
 
     costs: (S, D) uint8 as in SweepPair.cost (UNSEEN where a support does not see the point);
     same_spot: (S,) bool. Returns (D,) float32 in [0, 1], NaN where no support sees the point:
-    the mean of every same-spot support that sees the point and of the best `share` of the others.
+    the mean of every same-spot support that sees the point and of the best `share` of the others,
+    at least `min_agree` supports in all where that many see it.
     """
     vals = np.where(costs == UNSEEN, np.inf, costs.astype(np.float64))
     pinned = same_spot[:, None] & np.isfinite(vals)
@@ -284,6 +285,7 @@ def fused_costs(costs: np.ndarray, same_spot: np.ndarray, share: float) -> np.nd
     n_free = np.isfinite(free).sum(axis=0)
     k = np.ceil(n_free * share).astype(int)
     k = np.where((k == 0) & (n_free > 0) & ~pinned.any(axis=0), 1, k)        # at least one support
+    k = np.maximum(k, np.minimum(n_free, min_agree - pinned.sum(axis=0)))      # at least min_agree in all
     csum = np.concatenate([np.zeros((1, vals.shape[1])), np.cumsum(np.where(np.isfinite(free), free, 0.0), axis=0)])
     total = np.take_along_axis(csum, k[None], axis=0)[0] + np.where(pinned, vals, 0.0).sum(axis=0)
     count = k + pinned.sum(axis=0)
@@ -294,7 +296,8 @@ def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None =
     """One depth for all supports.
 
     At each plane, the mean cost of the best `best_share` of the supports that see the point (a
-    support where the point is hidden must not veto it), with the supports from the reference's
+    support where the point is hidden must not veto it; but at least `min_agree` of them where that
+    many see it: of two supports the best half is one, and one look-alike is no agreement), with the supports from the reference's
     own spot (same_spot, (S,) bool; depth_span_px) always counted: a photo taken from the same place
     cannot see behind what the reference sees, so its "no match" is never an occlusion. Then one
     plane per pixel: the best one, or with `smooth_p2` > 0 the one a semi-global regularisation
@@ -309,7 +312,7 @@ def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None =
     D = max(p.cost.shape[2] for p in pairs)
     stack = np.ascontiguousarray(np.stack([np.broadcast_to(p.cost, (*p.cost.shape[:2], D)) for p in pairs]))
     pinned = np.zeros(len(pairs), np.bool_) if same_spot is None else np.asarray(same_spot, np.bool_)
-    volume, n_vol = _volume_kernel(stack, pinned, float(sp.best_share), float(sp.min_seen_share))
+    volume, n_vol = _volume_kernel(stack, pinned, float(sp.best_share), float(sp.min_seen_share), int(sp.min_agree))
     if sp.smooth_p2 > 0:
         planes = next((p.planes for p in pairs if len(p.planes)), np.zeros((0, 4)))
         fronto = (planes[:, 0] == 0) & (planes[:, 1] == 0) & (planes[:, 2] == 1)     # listed first
@@ -343,7 +346,7 @@ def _volume_numba():
     import numba
 
     @numba.njit(parallel=True, cache=True, nogil=True)
-    def kernel(stack, pinned, share, min_seen_share):
+    def kernel(stack, pinned, share, min_seen_share, min_agree):
         S, H, W, D = stack.shape
         volume = np.full((H, W, D), -1.0, np.float32)
         n_vol = np.zeros((H, W, D), np.uint8)
@@ -378,6 +381,7 @@ def _volume_numba():
                     k = int(np.ceil(n * share))
                     if k == 0 and n_pin == 0:
                         k = 1
+                    k = max(k, min(n, min_agree - n_pin))
                     for a in range(k):              # partial selection sort: the k smallest
                         m = a
                         for b in range(a + 1, n):

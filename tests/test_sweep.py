@@ -165,20 +165,37 @@ def test_peer_baseline_finds_a_pasted_object_under_pure_rotation():
     assert p[70:90, 90:110].mean() > 0.8 and p[20:40, 20:60].mean() < 0.3
 
 
-def test_fusion_kernel_equals_its_numpy_definition_with_same_spot_supports():
+@pytest.mark.parametrize("min_agree", [1, 2, 3])
+def test_fusion_kernel_equals_its_numpy_definition_with_same_spot_supports(min_agree):
     rng = np.random.default_rng(5)
     cost = rng.integers(0, 256, (5, 6, 7, 9), dtype=np.uint8)           # 5 supports, 6 x 7 pixels, 9 planes
     pairs = [SW.SweepPair(0, k + 1, cost[k], np.zeros((9, 4)), 0.0) for k in range(5)]
     same = np.array([True, False, False, True, False])
-    f = SW.fuse(pairs, SP, same)
+    sp = dataclasses.replace(SP, min_agree=min_agree)
+    f = SW.fuse(pairs, sp, same)
     for y in range(6):
         for x in range(7):
-            curve = SW.fused_costs(cost[:, y, x], same, SP.best_share)
+            curve = SW.fused_costs(cost[:, y, x], same, sp.best_share, min_agree)
             if np.all(np.isnan(curve)):
                 assert f.plane[y, x] == -1 and np.isnan(f.cost[y, x])
                 continue
             assert f.cost[y, x] == pytest.approx(np.nanmin(curve), abs=1e-6)
             assert curve[f.plane[y, x]] == pytest.approx(np.nanmin(curve), abs=1e-6)
+
+
+def test_one_look_alike_of_two_supports_is_agreement_only_when_min_agree_allows():
+    """Of two supports the best half is one: by default one support's match makes the point static;
+    with min_agree 2 both are averaged where both see it, and a point one alone sees keeps its cost."""
+    look_alike = np.full((1, 2, 3), 254, np.uint8)
+    look_alike[0, :, 1] = 0                                     # a perfect match at plane 1
+    other = np.full((1, 2, 3), 200, np.uint8)
+    other[0, 1] = SW.UNSEEN                                     # pixel 1: only the look-alike sees it
+    pairs = [SW.SweepPair(0, 1, look_alike, np.zeros((3, 4)), 0.0), SW.SweepPair(0, 2, other, np.zeros((3, 4)), 0.0)]
+    alone = SW.fuse(pairs, SP)
+    both = SW.fuse(pairs, dataclasses.replace(SP, min_agree=2))
+    assert alone.cost[0, 0] == pytest.approx(0.0)
+    assert both.cost[0, 0] == pytest.approx(100 / SW.SCALE, abs=1e-6)    # the mean of 0 and 200
+    assert alone.cost[0, 1] == both.cost[0, 1] == pytest.approx(0.0)
 
 
 def test_a_support_from_the_same_spot_is_never_dropped_as_occluded():
