@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 
-def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q) -> None:
+def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q, settings: tuple = ()) -> None:
     try:
         from crowdcam.memory import limit_arenas_for
         from pipeline.cache import PairCache
@@ -30,7 +30,7 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q)
         from pipeline.params import get_preset
         from pipeline.run import detect_set
 
-        params = get_preset(preset).replace(max_side=max_side)
+        params = get_preset(preset).replace(max_side=max_side).with_settings(list(settings))
         with tempfile.TemporaryDirectory(prefix="crowdcam-bench-") as tmp:
             cache = PairCache(Path(tmp))
             t0 = time.perf_counter()
@@ -42,7 +42,8 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q)
             ps2 = load_set(Path(set_dir), params.max_side)
             detect_set(ps2, params, cache, workers=workers)
             warm = time.perf_counter() - t1
-        row = {"set": ps.name, "preset": preset, "images": len(ps.photos), "ordered_pairs": len(res.pair_results),
+        row = {"set": ps.name, "preset": preset, "settings": list(settings), "images": len(ps.photos),
+               "ordered_pairs": len(res.pair_results),
                "rejected_pairs": sum(not g.ok for (i, j), g in res.pairs.items() if i < j),
                "cold_s": cold, "s_per_pair": cold / max(1, len(res.pair_results)), "warm_s": warm,
                "timings": res.timings}
@@ -81,18 +82,20 @@ def _f_cell(fp: dict | None) -> str:
 
 
 def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int | None, out: Path,
-              quiet: bool = False) -> int:
+              quiet: bool = False, settings: list[str] = ()) -> int:
     from pipeline.cache import atomic_write_bytes
 
     ctx = mp.get_context("spawn")
     rows = []
     head = (f"{'set':<20} {'preset':<15} {'imgs':>4} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'warm s':>7} "
             f"{'peak MB':>9} {'J img':>11} {'J set':>11} {'thr':>5} {'static>0.5':>10} {'F <2px/p90>10/med':>17}")
+    if settings:
+        print("settings changed from the presets:", " ".join(settings))
     print(head)
     for s in sets:
         for preset in presets:
             q = ctx.Queue()
-            p = ctx.Process(target=_bench_one, args=(str(s), preset, max_side, workers, q))
+            p = ctx.Process(target=_bench_one, args=(str(s), preset, max_side, workers, q, tuple(settings)))
             p.start()
             row = q.get()
             p.join()

@@ -80,7 +80,10 @@ def _params(args):
         if args.max_side < 64 or args.max_side > 4096:
             raise CliError(f"--max-side must be between 64 and 4096 (got {args.max_side})")
         p = p.replace(max_side=args.max_side)
-    return p
+    try:
+        return p.with_settings(getattr(args, "param", None) or [])
+    except ValueError as e:
+        raise CliError(str(e)) from None
 
 
 def _cache(args, rep=None):
@@ -395,8 +398,16 @@ def cmd_bench(args) -> int:
         rows = [ui_latency(s, presets[0], args.max_side, tour_rounds=args.tour_rounds) for s in sets]
         print_ui_latency(rows)
         return 0
+    if args.param and args.ui:
+        raise CliError("--param applies to the timed runs, not to --ui (the inspector runs its presets as they are)")
+    from pipeline.params import get_preset
+    for preset in presets:             # a bad setting is one line now, not an error row per set later
+        try:
+            get_preset(preset).with_settings(args.param or [])
+        except ValueError as e:
+            raise CliError(str(e)) from None
     out = Path(args.json) if args.json else Path.cwd() / "crowdcam-out" / "bench.json"
-    return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet)
+    return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet, settings=args.param or [])
 
 
 def cmd_make_samples(args) -> int:
@@ -483,6 +494,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--rerun-web", action="store_true", help="stream the run to Rerun's web viewer and serve it")
     d.add_argument("--rr-ref", default=None, help="reference photo (stem) shown first in Rerun")
     d.add_argument("--rr-pixel", action="append", help="X,Y (working pixels) of the reference to explain in Rerun")
+    d.add_argument("--param", action="append", metavar="SECTION.FIELD=VALUE",
+                   help="change one setting of the preset (repeatable), e.g. sweep.min_agree=2 "
+                        "(pipeline/params.py lists them; summary.json records them all)")
     common(d)
     d.set_defaults(fn=cmd_detect)
 
@@ -517,6 +531,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=int, default=None)
     b.add_argument("--json", default=None, help="where to write the JSON report (default ./crowdcam-out/bench.json)")
     b.add_argument("--quiet", action="store_true")
+    b.add_argument("--param", action="append", metavar="SECTION.FIELD=VALUE",
+                   help="change one setting of every preset run (repeatable), e.g. sweep.min_agree=2")
     b.add_argument("--ui", action="store_true",
                    help="measure the inspector's main-view update and tour-step latency instead (uses the cache)")
     b.add_argument("--tour-rounds", type=int, default=3,

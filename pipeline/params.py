@@ -170,6 +170,33 @@ class Params:
     def replace(self, **changes) -> "Params":
         return dataclasses.replace(self, **changes)
 
+    def with_settings(self, settings: list[str]) -> "Params":
+        """These parameters with settings "SECTION.FIELD=VALUE" changed (e.g. "sweep.min_agree=2",
+        "geometry.recon_rescue_planar=false", "max_side=800"); the value is read as the field's
+        current type (true/false, a number, comma-separated numbers for a tuple). Raises ValueError
+        with one line naming the setting and the problem."""
+        p = self
+        for item in settings:
+            name, eq, text = item.partition("=")
+            name, text = name.strip(), text.strip()
+            if not eq or not name or not text:
+                raise ValueError(f"setting {item!r}: expected SECTION.FIELD=VALUE, e.g. sweep.min_agree=2")
+            section, _, fname = name.rpartition(".")
+            if section and section not in SECTIONS:
+                raise ValueError(f"setting {item!r}: no section {section!r} (sections: {', '.join(SECTIONS)})")
+            holder = getattr(p, section) if section else p
+            names = [f.name for f in dataclasses.fields(holder)]
+            if fname not in names or (not section and fname in SECTIONS + ("preset",)):
+                where = f"in {section}" if section else "at the top level"
+                raise ValueError(f"setting {item!r}: no field {fname!r} {where}")
+            try:
+                value = _parse_setting(text, getattr(holder, fname))
+            except ValueError as e:
+                raise ValueError(f"setting {item!r}: {e}") from None
+            holder = dataclasses.replace(holder, **{fname: value})
+            p = dataclasses.replace(p, **{section: holder}) if section else holder
+        return p
+
     def pair_key_material(self) -> str:
         """The parameters a per-pair matching result depends on, as canonical JSON."""
         d = {"max_side": self.max_side, "patches": dataclasses.asdict(self.patches),
@@ -196,6 +223,37 @@ SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "min_
 
 # GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
 POST_GEOMETRY = ("two_view_max_uncertainty_frac",)
+
+
+SECTIONS = ("geometry", "patches", "descriptors", "aggregate", "sweep")
+
+
+def _parse_setting(text: str, current):
+    """A setting's text as the type of the field's current value."""
+    if isinstance(current, bool):
+        low = text.lower()
+        if low in ("true", "1", "on", "yes"):
+            return True
+        if low in ("false", "0", "off", "no"):
+            return False
+        raise ValueError(f"{text!r} is not true or false")
+    if isinstance(current, tuple):
+        parts = [t.strip() for t in text.split(",") if t.strip()]
+        kind = type(current[0]) if current else float
+        if len(parts) != len(current):
+            raise ValueError(f"expected {len(current)} comma-separated values")
+        return tuple(_parse_setting(t, kind()) for t in parts)
+    kinds = {int: "a whole number", float: "a number"}
+    for kind, what in kinds.items():
+        if type(current) is kind:
+            try:
+                value = kind(text)
+            except ValueError:
+                raise ValueError(f"{text!r} is not {what}") from None
+            if kind is float and value != value:
+                raise ValueError("NaN is not a setting")
+            return value
+    return text
 
 
 def digest(text: str) -> str:

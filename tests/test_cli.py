@@ -192,6 +192,20 @@ def test_bad_input_gives_one_line_error(tmp_path, case, expect):
     assert not out_default.exists() and not (d / "results").exists()
 
 
+def test_a_setting_changed_by_name_reaches_the_run_and_its_summary(detected, tmp_path):
+    _, cache, _, _ = detected
+    out = tmp_path / "out"
+    r = run_cli("detect", SET, "--out", out, "--max-side", 320, "--quiet", "--param", "sweep.min_agree=2",
+                "--param", "geometry.recon_rescue_planar=false", cache=cache)
+    assert r.returncode == 0, r.stderr
+    params = json.loads((out / "summary.json").read_text())["parameters"]
+    assert params["sweep"]["min_agree"] == 2 and params["geometry"]["recon_rescue_planar"] is False
+    bad = run_cli("detect", SET, "--out", tmp_path / "bad", "--param", "sweep.nope=1", cache=cache)
+    lines = [l for l in bad.stderr.splitlines() if l.startswith("crowdcam: error")]
+    assert bad.returncode == 2 and len(lines) == 1 and "no field 'nope' in sweep" in lines[0], bad.stderr
+    assert "Traceback" not in bad.stderr and not (tmp_path / "bad").exists()
+
+
 def test_warnings_name_the_skipped_files(tmp_path):
     d = tmp_path / "set"
     shutil.copytree(SET / "images", d)
