@@ -233,8 +233,9 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
 
 def _fused_curve(res, i: int, sw: list[int], gy: int, gx: int) -> np.ndarray:
     """(D,) the fused cost of one grid pixel at every plane (sweep.fuse for one pixel)."""
-    from .sweep import fused_costs
+    from .sweep import agree_count, fused_costs
     pairs = [res.pair_results[(i, k)].sweep for k in sw]
     D = max(p.cost.shape[2] for p in pairs)
     costs = np.stack([np.broadcast_to(p.cost[gy, gx], (D,)) for p in pairs])       # (S, D) uint8
-    return fused_costs(costs, res.same_spot(i, sw), res.params.sweep.best_share, res.params.sweep.min_agree)
+    sp = res.params.sweep
+    return fused_costs(costs, res.same_spot(i, sw), sp.best_share, agree_count(sp, len(sw)))

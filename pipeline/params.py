@@ -137,6 +137,8 @@ class SweepParams:
     best_share: float = 0.5            # fuse the best half of the supports that see a point (occlusion)
     min_agree: int = 1                 # but at least this many where that many see it (of two supports the best
                                        # half is one look-alike; 2: tabletop 0.53 -> 0.68, facade 0.20 -> 0.11)
+    two_supports_agree: bool = False   # a reference with only two swept supports averages both (min_agree 2 for
+                                       # it alone; default: tabletop 0.53 -> 0.57, plaza 0.29 -> 0.31)
     same_spot_px: float = 0.0          # supports whose match moves less than this over the depth range (working
                                        # px; shots from the reference's spot) always count: 0 = none are pinned
     smooth_p2: float = 0.0             # > 0: the plane per pixel by semi-global regularisation of the fused
@@ -218,8 +220,9 @@ class Params:
 
 
 # SweepParams fields of the per-reference fusion and calibration, not of a pair's cost volume
-SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "min_agree", "same_spot_px", "smooth_p2",
-                "smooth_p1", "smooth_paths", "smooth_unseen", "calib_slope", "calib_centre", "weight")
+SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "min_agree", "two_supports_agree",
+                "same_spot_px", "smooth_p2", "smooth_p1", "smooth_paths", "smooth_unseen", "calib_slope",
+                "calib_centre", "weight")
 
 # GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
 POST_GEOMETRY = ("two_view_max_uncertainty_frac",)
@@ -272,7 +275,7 @@ PRESETS: dict[str, Params] = {
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
                                   calib_scale=1.544, calib_offset=-0.65),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=48, same_spot_px=8.0,
-                          smooth_p2=4.0),
+                          smooth_p2=4.0, two_supports_agree=True),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
     "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),

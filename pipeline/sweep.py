@@ -292,6 +292,13 @@ def fused_costs(costs: np.ndarray, same_spot: np.ndarray, share: float, min_agre
     return np.where(count > 0, total / np.maximum(count, 1) / SCALE, np.nan).astype(np.float32)
 
 
+def agree_count(sp: SweepParams, n_swept: int) -> int:
+    """The fewest supports the fusion averages where that many see a point (sweep.min_agree), for a
+    reference with `n_swept` swept supports: with `two_supports_agree` a reference with only two
+    averages both (of two the best half is one, and one look-alike would decide alone)."""
+    return max(int(sp.min_agree), 2 if sp.two_supports_agree and n_swept == 2 else 1)
+
+
 def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None = None) -> Fused:
     """One depth for all supports.
 
@@ -313,7 +320,8 @@ def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None =
     D = max(p.cost.shape[2] for p in pairs)
     stack = np.ascontiguousarray(np.stack([np.broadcast_to(p.cost, (*p.cost.shape[:2], D)) for p in pairs]))
     pinned = np.zeros(len(pairs), np.bool_) if same_spot is None else np.asarray(same_spot, np.bool_)
-    volume, n_vol = _volume_kernel(stack, pinned, float(sp.best_share), float(sp.min_seen_share), int(sp.min_agree))
+    volume, n_vol = _volume_kernel(stack, pinned, float(sp.best_share), float(sp.min_seen_share),
+                                   agree_count(sp, len(pairs)))
     if sp.smooth_p2 > 0:
         planes = next((p.planes for p in pairs if len(p.planes)), np.zeros((0, 4)))
         fronto = (planes[:, 0] == 0) & (planes[:, 1] == 0) & (planes[:, 2] == 1)     # listed first

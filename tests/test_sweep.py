@@ -198,6 +198,21 @@ def test_one_look_alike_of_two_supports_is_agreement_only_when_min_agree_allows(
     assert alone.cost[0, 1] == both.cost[0, 1] == pytest.approx(0.0)
 
 
+def test_two_supports_agree_only_where_a_reference_has_just_two():
+    """two_supports_agree: a reference with two swept supports averages both; with a third support
+    the best half is two anyway, and the rule changes nothing."""
+    look_alike = np.full((1, 1, 3), 254, np.uint8)
+    look_alike[0, 0, 1] = 0                                     # a perfect match at plane 1
+    other = np.full((1, 1, 3), 200, np.uint8)
+    pairs = [SW.SweepPair(0, 1, look_alike, np.zeros((3, 4)), 0.0), SW.SweepPair(0, 2, other, np.zeros((3, 4)), 0.0)]
+    agree = dataclasses.replace(SP, two_supports_agree=True)
+    assert SW.fuse(pairs, SP).cost[0, 0] == pytest.approx(0.0)
+    assert SW.fuse(pairs, agree).cost[0, 0] == pytest.approx(100 / SW.SCALE, abs=1e-6)
+    assert SW.agree_count(agree, 2) == 2 and SW.agree_count(agree, 3) == 1 and SW.agree_count(SP, 2) == 1
+    three = pairs + [SW.SweepPair(0, 3, other.copy(), np.zeros((3, 4)), 0.0)]
+    np.testing.assert_array_equal(SW.fuse(three, SP).cost, SW.fuse(three, agree).cost)
+
+
 def test_a_support_from_the_same_spot_is_never_dropped_as_occluded():
     # three supports agree at plane 2; the one taken from the reference's spot sees no match there
     cost = np.full((4, 1, 1, 5), 200, np.uint8)
