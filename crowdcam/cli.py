@@ -393,13 +393,13 @@ def cmd_bench(args) -> int:
         if not s.is_dir():
             raise CliError(f"{s}: no such folder")
     presets = args.preset or ["default"]
+    if args.param and args.ui:
+        raise CliError("--param applies to the timed runs, not to --ui (the inspector runs its presets as they are)")
     if args.ui:
         from crowdcam.bench import print_ui_latency, ui_latency
         rows = [ui_latency(s, presets[0], args.max_side, tour_rounds=args.tour_rounds) for s in sets]
         print_ui_latency(rows)
         return 0
-    if args.param and args.ui:
-        raise CliError("--param applies to the timed runs, not to --ui (the inspector runs its presets as they are)")
     from pipeline.params import get_preset
     for preset in presets:             # a bad setting is one line now, not an error row per set later
         try:

@@ -228,34 +228,31 @@ SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "min_
 POST_GEOMETRY = ("two_view_max_uncertainty_frac",)
 
 
-SECTIONS = ("geometry", "patches", "descriptors", "aggregate", "sweep")
+SECTIONS = tuple(f.name for f in dataclasses.fields(Params) if f.default_factory is not dataclasses.MISSING)
 
 
 def _parse_setting(text: str, current):
     """A setting's text as the type of the field's current value."""
     if isinstance(current, bool):
-        low = text.lower()
-        if low in ("true", "1", "on", "yes"):
+        if text.lower() in ("true", "1", "on", "yes"):
             return True
-        if low in ("false", "0", "off", "no"):
+        if text.lower() in ("false", "0", "off", "no"):
             return False
         raise ValueError(f"{text!r} is not true or false")
     if isinstance(current, tuple):
-        parts = [t.strip() for t in text.split(",") if t.strip()]
-        kind = type(current[0]) if current else float
+        parts = [t.strip() for t in text.split(",")]
         if len(parts) != len(current):
             raise ValueError(f"expected {len(current)} comma-separated values")
-        return tuple(_parse_setting(t, kind()) for t in parts)
-    kinds = {int: "a whole number", float: "a number"}
-    for kind, what in kinds.items():
-        if type(current) is kind:
-            try:
-                value = kind(text)
-            except ValueError:
-                raise ValueError(f"{text!r} is not {what}") from None
-            if kind is float and value != value:
-                raise ValueError("NaN is not a setting")
-            return value
+        return tuple(_parse_setting(t, c) for t, c in zip(parts, current))
+    if isinstance(current, (int, float)):
+        what = "a whole number" if isinstance(current, int) else "a number"
+        try:
+            value = type(current)(text)
+        except ValueError:
+            raise ValueError(f"{text!r} is not {what}") from None
+        if value != value:
+            raise ValueError("NaN is not a setting")
+        return value
     return text
 
 

@@ -91,7 +91,7 @@ class SetResult:
             return None
         p = params or self.params
         sp = p.sweep
-        key = (i, sw, sp.best_share, sp.min_agree, sp.two_supports_agree, sp.same_spot_px, sp.smooth_p1, sp.smooth_p2, sp.smooth_paths, sp.smooth_unseen)
+        key = (i, sw, sp)        # every sweep setting (SweepParams is frozen, so hashable): none can be left out
         f = self._fused.get(key)
         if f is None:
             # the result is returned from this local: another thread (photos' maps are made in

@@ -303,14 +303,14 @@ def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None =
     """One depth for all supports.
 
     At each plane, the mean cost of the best `best_share` of the supports that see the point (a
-    support where the point is hidden must not veto it; but at least `min_agree` of them where that
-    many see it: of two supports the best half is one, and one look-alike is no agreement), with
-    the supports from the reference's own spot (same_spot, (S,) bool; depth_span_px) always
+    support where the point is hidden must not veto it; but at least agree_count of them where
+    that many see it: of two supports the best half is one, and one look-alike is no agreement),
+    with the supports from the reference's own spot (same_spot, (S,) bool; depth_span_px) always
     counted: a photo taken from the same place cannot see behind what the reference sees, so its
-    "no match" is never an occlusion. Then one
-    plane per pixel: the best one, or with `smooth_p2` > 0 the one a semi-global regularisation
-    of the fused volume picks (smooth_volume): the static scene's depth is smooth, a mover's
-    accidental look-alike depths are not (EVIDENCE_NOTES point 9). The cost reported is the fused
+    "no match" is never an occlusion. Then one plane per pixel: the best one, or with `smooth_p2`
+    > 0 the one a semi-global regularisation of the fused volume picks (smooth_volume): the static
+    scene's depth is smooth, a mover's accidental look-alike depths are not (EVIDENCE_NOTES point
+    9). The cost reported is the fused
     cost at that plane.
 
     pairs: the reference's SweepPairs ("sweep" ones share the same planes; "aligned" ones count
