@@ -158,7 +158,10 @@ class Fusion:
     scale, offset: P_raw = 1 / (1 + exp(-scale * (total + offset))) (1 and 0 without the
     calibration); p_raw: P_dynamic from the formula, before the refinement; p_map: the value on
     the map (after the optional guided filter); threshold_at: the total at which P_raw equals
-    the threshold; speaks: some support saw the point (else P_raw is 0.5, no evidence)."""
+    the threshold; speaks: some support saw the point (else P_raw is 0.5, no evidence);
+    plane_vote: the plane-aligned difference's log-odds for "moving", added last (after the guided
+    filter; NaN without the cue), plane_diff its median colour difference at the pixel (NaN where no
+    support covers it), p_before_plane the value it was added to."""
 
     method: str
     rows: tuple[FusionRow, ...]
@@ -170,6 +173,9 @@ class Fusion:
     refined: bool
     threshold_at: float
     speaks: bool = True
+    plane_vote: float = float("nan")
+    plane_diff: float = float("nan")
+    p_before_plane: float = float("nan")
 
 
 def _logit(t: float) -> float:
@@ -233,8 +239,18 @@ def fusion(snap: SetResult, settings: Settings, terms: TermCache, dyn: np.ndarra
                                       vote, total))
         speaks = bool(snap.has_evidence(i, sups, p)[v, u])
     p_raw = float(1.0 / (1.0 + np.exp(-scale * (total + offset)))) if speaks else 0.5
+    plane_vote = plane_diff = p_before = float("nan")
+    z = snap.plane_log_odds(i, sups, p) if p.sweep.enabled else None
+    if z is not None:                # SetResult.with_plane_cue, at one pixel
+        a = p.aggregate
+        plane_vote = a.plane_shift - a.plane_weight * float(z[v, u])
+        diffs = [d[v, u] for j in sups if (d := getattr(snap.pair_results[(i, j)], "plane_diff", None)) is not None
+                 and np.isfinite(d[v, u])]
+        plane_diff = float(np.median(diffs)) if diffs else float("nan")
+        q = min(max(p_map, 1e-6), 1 - 1e-6)
+        p_before = float(1.0 / (1.0 + np.exp(-(np.log(q / (1 - q)) - plane_vote))))
     return Fusion("votes", tuple(rows), total, scale, offset, p_raw, p_map, refined,
-                  _logit(settings.threshold) / scale - offset, speaks)
+                  _logit(settings.threshold) / scale - offset, speaks, plane_vote, plane_diff, p_before)
 
 
 @dataclass(frozen=True)
@@ -460,12 +476,20 @@ def fusion_markdown(report: PixelReport) -> str:
             formula = f"1 / (1 + e^(−{f.scale:.2f} × (sum {_signed(f.offset)})))"
         else:
             formula = "1 / (1 + e^(−sum))"
+        plane = np.isfinite(f.plane_vote)
+        shown = f.p_before_plane if plane else f.p_map
         if not f.speaks:
             lines += ["", "No support sees this point: no evidence, so P_dynamic = **0.50**."]
         else:
             lines += ["", f"P_dynamic = {formula} = **{f.p_raw:.2f}**"
-                      + (f"; smoothed along the photo's edges (guided filter), the map shows **{f.p_map:.2f}**."
+                      + (f"; smoothed along the photo's edges (guided filter): **{shown:.2f}**."
                          if f.refined else ".")]
+        if plane:
+            seen = (f"their median colour difference here is {f.plane_diff:.1f}" if np.isfinite(f.plane_diff)
+                    else "none of them covers this point (read as the peer's 0.5: mildly static)")
+            lines += ["", f"Then the plane-aligned difference (each support aligned to this photo by the homography "
+                      f"of its matches; {seen}) adds {_signed(f.plane_vote)} to the log-odds for moving: "
+                      f"the map shows **{f.p_map:.2f}**."]
     else:
         lines += ["| support | colour difference | P alone |", "|---|--:|--:|"]
         for r in f.rows:

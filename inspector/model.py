@@ -301,7 +301,8 @@ def dynamic_prob(snap: SetResult, settings: Settings, terms: TermCache) -> np.nd
             logit += p.sweep.weight * sw
         a = p.aggregate
         dyn = dynamic_from_log_odds(a.calib_scale * (logit - a.calib_offset * snap.sweep_seen(i, sups, p)))
-        return snap.refine_dynamic(i, np.where(snap.has_evidence(i, sups, p), dyn, 0.5).astype(np.float32), p)
+        dyn = snap.refine_dynamic(i, np.where(snap.has_evidence(i, sups, p), dyn, 0.5).astype(np.float32), p)
+        return snap.with_plane_cue(i, sups, dyn, p)
     # keyed like the terms (by the normaliser, not the snapshot object, whose id can be reused), and by
     # which supports carry a depth sweep
     swept = tuple(j for j in sups if snap.is_swept(i, j))

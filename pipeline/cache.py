@@ -83,7 +83,8 @@ def to_bytes(obj: Any, float16: tuple[str, ...] = (), delta: tuple[str, ...] = (
     meta: dict[str, Any] = {}
     _flatten(obj, "", arrays, meta)
     for k in float16:
-        arrays[k] = arrays[k].astype(np.float16)
+        if k in arrays:               # a field may be None (a pair without that map)
+            arrays[k] = arrays[k].astype(np.float16)
     deltas = [k for k in delta if k in arrays and arrays[k].dtype == np.uint8 and arrays[k].ndim]
     for k in deltas:
         a = arrays[k]
@@ -117,7 +118,8 @@ def from_bytes(cls: type, data: bytes, float32: tuple[str, ...] = ()) -> Any:
     for k in meta.pop("__delta__", []):
         arrays[k] = np.cumsum(arrays[k], axis=-1, dtype=np.uint8)
     for k in float32:
-        arrays[k] = arrays[k].astype(np.float32)
+        if k in arrays:
+            arrays[k] = arrays[k].astype(np.float32)
     return _unflatten(cls, "", arrays, meta)
 
 

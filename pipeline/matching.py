@@ -62,6 +62,9 @@ class PairResult:
     block grid, strip/start in the table are block row/column, H maps reference to support).
     sweep: the pair's cost volume over the reference's depth planes (sweep.SweepPair) when both
     cameras are known and the preset sweeps depths (default), else None.
+    plane_diff: (h, w) float32 Lab difference of the support aligned by the homography of the
+    pair's matches (peer.plane_difference; NaN where it does not cover the reference), when the
+    preset uses that cue (aggregate.plane_weight > 0) and such a homography exists, else None.
     """
 
     ref: int
@@ -77,6 +80,7 @@ class PairResult:
     kind: str = "epipolar"
     H: np.ndarray | None = None
     sweep: SweepPair | None = None
+    plane_diff: np.ndarray | None = None
 
 
 def patch_length(params: Params) -> int:

@@ -53,13 +53,44 @@ def difference(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, H: 
     return PeerPair(ref, sup, np.where(inside, d, np.nan).astype(np.float32), H, time.perf_counter() - t0)
 
 
+def plane_difference(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, p_ref: np.ndarray,
+                     p_sup: np.ndarray, ransac_px: float, min_inliers: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The peer's difference as a cue of our own fusion (aggregate.plane_weight): the homography
+    of all the pair's feature matches p_ref, p_sup ((N, 2) float32, the F inliers and outliers
+    alike, as the peer fits it: the dominant plane), then `difference`. Returns ((h, w) float32
+    diff, (3, 3) H), or (None, None) when no homography has `min_inliers` inliers."""
+    from .support import _fit_h
+    if len(p_ref) < max(8, min_inliers):
+        return None, None
+    H, mask = _fit_h(p_ref.astype(np.float32), p_sup.astype(np.float32), ransac_px)
+    if H is None or int(mask.sum()) < min_inliers:
+        return None, None
+    H = H / H[2, 2]
+    return difference(ref, sup, rgb_ref, rgb_sup, H).diff, H
+
+
+P_CLIP = 1e-4             # P_peer clipped to [1e-4, 1 - 1e-4]: its logit within +-9.21
+
+
+def plane_log_odds(diffs: list[np.ndarray], neutral: float) -> np.ndarray:
+    """Static log-odds of the plane-aligned difference, (h, w) float32: the peer's own map
+    P_peer = dynamic_from_differences(diffs) (1 - exp(-median / TAU), 0.5 where no support covers
+    the pixel) read against the map value at a median difference of `neutral`:
+    logit(P_neutral) - logit(P_peer), positive (static) below `neutral`, negative above it,
+    P_peer clipped to [1e-4, 1 - 1e-4]. So a pixel no support covers reads as the peer's "no evidence"
+    (0.5), mildly static (log 9 at the default neutral): most of a scene does not move.
+    diffs: per support (h, w) float32 Lab difference, NaN where it does not cover the pixel."""
+    p = np.clip(dynamic_from_differences(diffs).astype(np.float64), P_CLIP, 1.0 - P_CLIP)
+    logit_peer = np.log(p / (1.0 - p))
+    return (np.log(np.expm1(neutral / TAU)) - logit_peer).astype(np.float32)
+
+
 def dynamic_from_differences(diffs: list[np.ndarray]) -> np.ndarray:
     """Median over the supports that cover a pixel, mapped to (h, w) float32 P_dynamic in [0, 1]
     (1 - exp(-d / TAU)); 0.5 where no support covers it (no evidence)."""
-    with np.errstate(all="ignore"):
-        import warnings
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)     # all-NaN columns: nothing covers the pixel
-            med = np.nanmedian(np.stack(diffs), axis=0)
+    stack = np.stack(diffs)
+    covered = np.isfinite(stack).any(axis=0)
+    # no all-NaN column reaches nanmedian (its warning filter is process-wide; the maps run in threads)
+    med = np.where(covered, np.nanmedian(np.where(covered[None], stack, 0.0), axis=0), np.nan)
     p = 1.0 - np.exp(-np.nan_to_num(med, nan=0.0) / TAU)
     return np.where(np.isnan(med), 0.5, p).astype(np.float32)

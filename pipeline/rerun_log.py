@@ -293,6 +293,14 @@ def log_dynamic(res, rec, stems, gts: dict, threshold: float, focus: int | None 
             inv = np.where((f.plane >= 0) & np.isfinite(z), 1.0 / np.maximum(z, 1e-9), 0.0)
             rec.log(f"{base}/depth", rr.DepthImage(np.round(inv / max(inv.max(), 1e-9) * 255).astype(np.uint8),
                                                    meter=255.0, colormap="viridis"), static=True)
+        plane = res.plane_log_odds(i, res.supports[i]) if res.params.sweep.enabled else None
+        if plane is not None:
+            # the plane-aligned difference's vote for "moving", as the map adds it: turbo, red = moving
+            a = res.params.aggregate
+            vote = a.plane_shift - a.plane_weight * np.maximum(plane, -a.plane_dynamic_cap)
+            shown = np.clip(0.5 + vote / 8.0, 0.0, 1.0)
+            rec.log(f"{base}/plane_cue", rr.DepthImage(np.round(shown * 255).astype(np.uint8), meter=255.0,
+                                                       colormap="turbo", depth_range=(0.0, 255.0)), static=True)
         if res.params.sweep.enabled and i != focus:
             continue
         # the paper's Fig. 5: the map after 1, 2, ... k supports, made as the final map is

@@ -219,7 +219,8 @@ def test_the_fusion_table_adds_up(run):
         p = settings.params()
         sups = list(snap.supports[i])
         dyn = dynamic_prob(snap, settings, terms)
-        raw = snap.dynamic_prob(i, sups, dataclasses.replace(settings, refine=False).params())
+        p_raw = dataclasses.replace(settings, refine=False).params()
+        raw = snap.dynamic_prob(i, sups, p_raw.replace(aggregate=dataclasses.replace(p_raw.aggregate, plane_weight=0.0)))
         for fx, fy in ((0.5, 0.6), (0.2, 0.3), (0.8, 0.8)):
             xy = np.array([fx * w, fy * h])
             u, v = round(xy[0]), round(xy[1])
@@ -239,8 +240,12 @@ def test_the_fusion_table_adds_up(run):
             assert -f.total == pytest.approx(z, abs=1e-4)
             assert f.p_raw == pytest.approx(float(raw[v, u]), abs=1e-4)
             assert f.p_map == pytest.approx(float(dyn[v, u]))
+            if p.aggregate.plane_weight > 0:       # the plane cue, added after the filter, at this pixel
+                z = snap.plane_log_odds(i, sups, p)
+                a = p.aggregate
+                assert f.plane_vote == pytest.approx(a.plane_shift - a.plane_weight * float(z[v, u]), abs=1e-5)
             md = compose.fusion_markdown(compose.PixelReport(xy, f.p_map, (), (), fusion=f))
-            assert f"**{f.p_raw:.2f}**" in md
+            assert f"**{f.p_raw:.2f}**" in md and f"**{f.p_map:.2f}**" in md
 
 
 def test_peer_baseline_fusion_is_the_median():

@@ -136,6 +136,15 @@ def test_cameras_in_3d(recording):
         assert f"/world/cameras/{part(res.photo_set.photos[k].stem)}/image" in paths
 
 
+def test_the_plane_cue_is_recorded_where_the_map_has_it(recording):
+    res, _, store, _ = recording
+    paths = set(map(str, store.schema().entity_paths()))
+    with_cue = [i for i, s in enumerate(res.supports) if s and res.plane_log_odds(i, s) is not None]
+    assert with_cue
+    for i in with_cue:
+        assert f"/dynamic/{part(res.photo_set.photos[i].stem)}/plane_cue" in paths
+
+
 def test_ground_truth_and_jaccard_on_the_first_screen(recording, tmp_path):
     """With ground truth: its outline (green, as in the inspector) and the Jaccard at the mask's
     threshold, scored at the original size as `crowdcam eval` does, both in the first view."""

@@ -58,3 +58,32 @@ def test_maps_made_in_threads_equal_maps_made_one_by_one(tmp_path):
         assert (a is None) == (b is None)
         if a is not None:
             assert np.array_equal(a, b)
+
+
+def test_default_pairs_carry_the_plane_difference_and_the_map_adds_it_last():
+    """default: a pair holds its plane-aligned difference (where its matches give a homography), and the map is the one without the
+    cue with the cue's log-odds added (after the guided filter); paper's pairs hold none."""
+    import dataclasses
+
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+
+    params = get_preset("default").replace(max_side=160)
+    ps = load_set(SAMPLE_SETS / "tabletop_ball", params.max_side)
+    res = detect_set(ps, params, PairCache(None), workers=1)
+    diffs = {ij: r.plane_diff for ij, r in res.pair_results.items()}      # None: no homography of 40 matches
+    assert all(d is None or d.shape == ps.photos[i].size for (i, _), d in diffs.items())
+    i = next(k for k, s in enumerate(res.supports) if any(diffs[(k, j)] is not None for j in s))
+    off = params.replace(aggregate=dataclasses.replace(params.aggregate, plane_weight=0.0))
+    base = res.dynamic_prob(i, res.supports[i], off)
+    z = res.plane_log_odds(i, res.supports[i])
+    a = params.aggregate
+    d = np.clip(base.astype(np.float64), 1e-6, 1 - 1e-6)
+    want = 1 / (1 + np.exp(np.log((1 - d) / d) + a.plane_weight * np.maximum(z, -a.plane_dynamic_cap) - a.plane_shift))
+    np.testing.assert_allclose(res.dynamic_prob(i, res.supports[i]), want, atol=1e-5)
+    paper = get_preset("paper").replace(max_side=160)
+    pres = detect_set(ps, paper, PairCache(None), workers=1)
+    assert pres.pair_results and all(r.plane_diff is None for r in pres.pair_results.values())
+    assert all(pres.plane_log_odds(k, s) is None for k, s in enumerate(pres.supports) if s)

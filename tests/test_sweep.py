@@ -254,3 +254,30 @@ def test_depth_span_is_zero_from_one_spot_and_grows_with_the_baseline():
     assert 0 < small < 2.0
     sideways = SW.depth_span_px(ref, (K, np.eye(3), np.array([0.5, 0, 0])), 1.5, SIZE)
     assert sideways == pytest.approx(180 * 0.5 / 1.5, rel=1e-6)          # f * baseline / near
+
+
+def test_plane_log_odds_reads_the_peer_map_against_its_neutral_difference():
+    from pipeline.peer import TAU, dynamic_from_differences, plane_log_odds
+    d = np.array([[0.5, 34.5, 80.0, np.nan]], np.float32)
+    other = np.array([[1.5, 34.5, 60.0, np.nan]], np.float32)
+    z = plane_log_odds([d, other], 34.5)
+    med = np.array([1.0, 34.5, 70.0])
+    p = 1 - np.exp(-med / TAU)
+    want = np.log(np.expm1(34.5 / TAU)) - np.log(p / (1 - p))
+    np.testing.assert_allclose(z[0, :3], want, atol=1e-4)
+    assert z[0, 0] > 0 and abs(z[0, 1]) < 1e-5 and z[0, 2] < 0         # static below the neutral, moving above
+    assert z[0, 3] == pytest.approx(np.log(np.expm1(34.5 / TAU)), rel=1e-5)   # uncovered: the peer's 0.5, mildly
+    assert z[0, 3] > 2.0                                                       # static (about log 9)
+    assert dynamic_from_differences([d, other])[0, 3] == 0.5
+
+
+def test_plane_difference_needs_a_homography_of_enough_matches():
+    from pipeline.peer import plane_difference
+    tex = texture(3)
+    a = render(camera(0.0), tex)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(20, 200, (60, 2)).astype(np.float32)
+    diff, H = plane_difference(0, 1, a, a, pts, pts + 3.0, 3.0, 40)         # a pure shift of the same photo
+    assert H is not None and np.allclose(H, [[1, 0, 3], [0, 1, 3], [0, 0, 1]], atol=1e-3)
+    assert diff.shape == a.shape[:2] and np.isnan(diff).any()                 # the shifted border is uncovered
+    assert plane_difference(0, 1, a, a, pts[:20], pts[:20] + 3.0, 3.0, 40) == (None, None)
