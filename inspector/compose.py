@@ -243,7 +243,7 @@ def fusion(snap: SetResult, settings: Settings, terms: TermCache, dyn: np.ndarra
     z = snap.plane_log_odds(i, sups, p) if p.sweep.enabled else None
     if z is not None:                # SetResult.with_plane_cue, at one pixel
         a = p.aggregate
-        plane_vote = a.plane_shift - a.plane_weight * float(z[v, u])
+        plane_vote = -a.plane_weight * float(z[v, u])
         diffs = [d[v, u] for j in sups if (d := getattr(snap.pair_results[(i, j)], "plane_diff", None)) is not None
                  and np.isfinite(d[v, u])]
         plane_diff = float(np.median(diffs)) if diffs else float("nan")

@@ -121,8 +121,6 @@ class AggregateParams:
     plane_neutral: float = 34.5        # the median Lab difference that is no evidence (tau ln 10: P_peer 0.9)
     plane_dynamic_cap: float = 99.0    # the most the cue may count for "moving" (log-odds, before the weight): off
                                        # its plane the scene's parallax reads as change too
-    plane_shift: float = 0.0           # added to the dynamic log-odds with the cue: the best threshold of the
-                                       # calibration sets back at 0.5 (the cue says "static" far more often)
 
 
 @dataclass(frozen=True)
@@ -280,7 +278,7 @@ PRESETS: dict[str, Params] = {
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
                                   calib_scale=1.544, calib_offset=-0.65,
-                                  plane_weight=0.6, plane_dynamic_cap=0.5, plane_shift=0.34),
+                                  plane_weight=0.6, plane_dynamic_cap=0.5),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=48, same_spot_px=8.0,
                           smooth_p2=4.0, two_supports_agree=True),
     ),

@@ -297,7 +297,7 @@ def log_dynamic(res, rec, stems, gts: dict, threshold: float, focus: int | None 
         if plane is not None:
             # the plane-aligned difference's vote for "moving", as the map adds it: turbo, red = moving
             a = res.params.aggregate
-            vote = a.plane_shift - a.plane_weight * np.maximum(plane, -a.plane_dynamic_cap)
+            vote = -a.plane_weight * plane
             shown = np.clip(0.5 + vote / 8.0, 0.0, 1.0)
             rec.log(f"{base}/plane_cue", rr.DepthImage(np.round(shown * 255).astype(np.uint8), meter=255.0,
                                                        colormap="turbo", depth_range=(0.0, 255.0)), static=True)

@@ -177,8 +177,7 @@ class SetResult:
         if z is None:
             return dyn
         d = np.clip(dyn.astype(np.float64), 1e-6, 1 - 1e-6)
-        a = p.aggregate
-        return dynamic_from_log_odds(np.log((1 - d) / d) + a.plane_weight * z - a.plane_shift)
+        return dynamic_from_log_odds(np.log((1 - d) / d) + p.aggregate.plane_weight * z)
 
     def dynamic_prob(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
         """P_dynamic of photo i from the given supports: Eq. 3 (and, with the sweep, the

@@ -243,7 +243,7 @@ def test_the_fusion_table_adds_up(run):
             if p.aggregate.plane_weight > 0:       # the plane cue, added after the filter, at this pixel
                 z = snap.plane_log_odds(i, sups, p)
                 a = p.aggregate
-                assert f.plane_vote == pytest.approx(a.plane_shift - a.plane_weight * float(z[v, u]), abs=1e-5)
+                assert f.plane_vote == pytest.approx(-a.plane_weight * float(z[v, u]), abs=1e-5)
             md = compose.fusion_markdown(compose.PixelReport(xy, f.p_map, (), (), fusion=f))
             assert f"**{f.p_raw:.2f}**" in md and f"**{f.p_map:.2f}**" in md
 

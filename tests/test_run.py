@@ -81,7 +81,7 @@ def test_default_pairs_carry_the_plane_difference_and_the_map_adds_it_last():
     z = res.plane_log_odds(i, res.supports[i])
     a = params.aggregate
     d = np.clip(base.astype(np.float64), 1e-6, 1 - 1e-6)
-    want = 1 / (1 + np.exp(np.log((1 - d) / d) + a.plane_weight * np.maximum(z, -a.plane_dynamic_cap) - a.plane_shift))
+    want = 1 / (1 + np.exp(np.log((1 - d) / d) + a.plane_weight * np.maximum(z, -a.plane_dynamic_cap)))
     np.testing.assert_allclose(res.dynamic_prob(i, res.supports[i]), want, atol=1e-5)
     paper = get_preset("paper").replace(max_side=160)
     pres = detect_set(ps, paper, PairCache(None), workers=1)
