@@ -1242,6 +1242,8 @@ class Session:
         f = report.fusion
         if f.method == "votes":
             rows = [render.VoteRow(r.name, r.vote, r.total, neutral=r.kind == "mean") for r in f.rows]
+            rows += [render.VoteRow(name, vote, total, neutral=neutral) for name, vote, total, neutral in
+                     compose.after_the_sum(f)]
             return render.fusion_chart(rows, f.threshold_at, f.p_map, CHART_WIDTH)
         return render.value_bars([r.name for r in f.rows], [r.p for r in f.rows], f.p_map, self.settings.threshold,
                                  CHART_WIDTH)

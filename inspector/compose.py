@@ -442,6 +442,26 @@ def large_view(snap: SetResult, report: PixelReport, sup: int, stems: list[str],
     return render.stack(parts, gap=6)
 
 
+def after_the_sum(f: Fusion) -> list[tuple[str, float, float, bool]]:
+    """The steps after the sum of votes, in the sum's units (the total whose P_raw would be the
+    value reached): the guided filter ("smoothing", a neutral step: it is no vote) and the
+    plane-aligned difference ("plane diff"), so that the chart ends at the map's value.
+    (name, step, total after it, neutral); names short enough for the chart's label column."""
+    if f.method != "votes" or not f.speaks:
+        return []
+    def as_total(p: float) -> float:
+        return _logit(min(max(p, 1e-6), 1 - 1e-6)) / f.scale - f.offset
+    plane = np.isfinite(f.plane_vote)
+    out, total = [], f.total
+    before = f.p_before_plane if plane else f.p_map
+    if f.refined:
+        out.append(("smoothing", as_total(before) - total, as_total(before), True))
+        total = as_total(before)
+    if plane:
+        out.append(("plane diff", as_total(f.p_map) - total, as_total(f.p_map), False))
+    return out
+
+
 def threshold_at(f: Fusion, threshold: float) -> float:
     """The total of votes at which the fusion's P_dynamic (before smoothing) equals `threshold`."""
     return _logit(threshold) / f.scale - f.offset if f.method == "votes" else float("nan")

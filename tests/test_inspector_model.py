@@ -244,6 +244,14 @@ def test_the_fusion_table_adds_up(run):
                 z = snap.plane_log_odds(i, sups, p)
                 a = p.aggregate
                 assert f.plane_vote == pytest.approx(-a.plane_weight * float(z[v, u]), abs=1e-5)
+            steps = compose.after_the_sum(f)          # the chart's last rows end at the map's value
+            if steps and f.speaks:
+                running = f.total
+                for _, step, total, _ in steps:
+                    running += step
+                    assert total == pytest.approx(running, abs=1e-9)
+                end = 1 / (1 + np.exp(-f.scale * (steps[-1][2] + f.offset)))
+                assert end == pytest.approx(f.p_map, abs=1e-5)
             md = compose.fusion_markdown(compose.PixelReport(xy, f.p_map, (), (), fusion=f))
             assert f"**{f.p_raw:.2f}**" in md and f"**{f.p_map:.2f}**" in md
 
