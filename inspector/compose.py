@@ -14,7 +14,7 @@ import numpy as np
 from pipeline.aggregate import cumulative_dynamic, remap
 from pipeline.explain import PixelEvidence, explain_pixel
 from pipeline.geometry import clip_line
-from pipeline.peer import TAU
+from pipeline.peer import TAU, median_difference
 from pipeline.run import SetResult
 
 from . import render
@@ -244,9 +244,7 @@ def fusion(snap: SetResult, settings: Settings, terms: TermCache, dyn: np.ndarra
     if z is not None:                # SetResult.with_plane_cue, at one pixel
         a = p.aggregate
         plane_vote = -a.plane_weight * float(z[v, u])
-        diffs = [d[v, u] for j in sups if (d := getattr(snap.pair_results[(i, j)], "plane_diff", None)) is not None
-                 and np.isfinite(d[v, u])]
-        plane_diff = float(np.median(diffs)) if diffs else float("nan")
+        plane_diff = float(median_difference([d[v:v + 1, u:u + 1] for d in snap.plane_diffs(i, sups)])[0, 0])
         q = min(max(p_map, 1e-6), 1 - 1e-6)
         p_before = float(1.0 / (1.0 + np.exp(-(np.log(q / (1 - q)) - plane_vote))))
     return Fusion("votes", tuple(rows), total, scale, offset, p_raw, p_map, refined,

@@ -59,10 +59,10 @@ def plane_difference(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarra
     of all the pair's feature matches p_ref, p_sup ((N, 2) float32, the F inliers and outliers
     alike, as the peer fits it: the dominant plane), then `difference`. Returns ((h, w) float32
     diff, (3, 3) H), or (None, None) when no homography has `min_inliers` inliers."""
-    from .support import _fit_h
+    from .support import fit_homography
     if len(p_ref) < max(8, min_inliers):
         return None, None
-    H, mask = _fit_h(p_ref.astype(np.float32), p_sup.astype(np.float32), ransac_px)
+    H, mask = fit_homography(p_ref.astype(np.float32), p_sup.astype(np.float32), ransac_px)
     if H is None or int(mask.sum()) < min_inliers:
         return None, None
     H = H / H[2, 2]
@@ -85,12 +85,18 @@ def plane_log_odds(diffs: list[np.ndarray], neutral: float) -> np.ndarray:
     return (np.log(np.expm1(neutral / TAU)) - logit_peer).astype(np.float32)
 
 
-def dynamic_from_differences(diffs: list[np.ndarray]) -> np.ndarray:
-    """Median over the supports that cover a pixel, mapped to (h, w) float32 P_dynamic in [0, 1]
-    (1 - exp(-d / TAU)); 0.5 where no support covers it (no evidence)."""
+def median_difference(diffs: list[np.ndarray]) -> np.ndarray:
+    """(h, w) float32 median over the supports that cover a pixel of their differences ((h, w)
+    float32 each, NaN where a support does not cover it); NaN where none covers it."""
     stack = np.stack(diffs)
     covered = np.isfinite(stack).any(axis=0)
     # no all-NaN column reaches nanmedian (its warning filter is process-wide; the maps run in threads)
-    med = np.where(covered, np.nanmedian(np.where(covered[None], stack, 0.0), axis=0), np.nan)
+    return np.where(covered, np.nanmedian(np.where(covered[None], stack, 0.0), axis=0), np.nan).astype(np.float32)
+
+
+def dynamic_from_differences(diffs: list[np.ndarray]) -> np.ndarray:
+    """Median over the supports that cover a pixel, mapped to (h, w) float32 P_dynamic in [0, 1]
+    (1 - exp(-d / TAU)); 0.5 where no support covers it (no evidence)."""
+    med = median_difference(diffs)
     p = 1.0 - np.exp(-np.nan_to_num(med, nan=0.0) / TAU)
     return np.where(np.isnan(med), 0.5, p).astype(np.float32)

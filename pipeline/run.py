@@ -163,9 +163,14 @@ class SetResult:
         p = params or self.params
         if not p.aggregate.plane_weight > 0:
             return None
-        diffs = [d for j in supports if (d := getattr(self.pair_results[(i, j)], "plane_diff", None)) is not None]
+        diffs = self.plane_diffs(i, supports)
         return np.maximum(plane_log_odds(diffs, p.aggregate.plane_neutral), -p.aggregate.plane_dynamic_cap) \
             if diffs else None
+
+    def plane_diffs(self, i: int, supports: list[int]) -> list[np.ndarray]:
+        """The (h, w) float32 plane-aligned differences of photo i's `supports` that have one
+        (PairResult.plane_diff), in their order; peer.median_difference gives their median."""
+        return [d for j in supports if (d := getattr(self.pair_results[(i, j)], "plane_diff", None)) is not None]
 
     def with_plane_cue(self, i: int, supports: list[int], dyn: np.ndarray, params: Params | None = None) -> np.ndarray:
         """P_dynamic (h, w) float32 with the plane-aligned difference added to its log-odds,

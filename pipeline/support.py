@@ -121,7 +121,9 @@ def _fit_f(p_ref: np.ndarray, p_sup: np.ndarray, thr: float, seed: int = 0) -> t
     return F / np.linalg.norm(F), mask.ravel().astype(bool)
 
 
-def _fit_h(p_ref: np.ndarray, p_sup: np.ndarray, thr: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+def fit_homography(p_ref: np.ndarray, p_sup: np.ndarray, thr: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """H (3, 3) with x_sup ~ H x_ref and its inlier mask (N, 1) uint8 from (N, 2) float32 matches
+    (MAGSAC++, `thr` px), or (None, None)."""
     try:
         H, mask = cv2.findHomography(p_ref, p_sup, cv2.USAC_MAGSAC, thr, None, 10000, 0.9999)
     except cv2.error:
@@ -147,7 +149,7 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
     if len(m) < max(8, p.min_inliers):
         return result(None, REJECTED, f"too few feature matches ({len(m)} < {max(8, p.min_inliers)})")
     if p.peer_homography:              # the peer baseline: one homography per pair, no other test
-        H, hmask = _fit_h(p_ref, p_sup, p.ransac_px * 2.0)
+        H, hmask = fit_homography(p_ref, p_sup, p.ransac_px * 2.0)
         inl = np.zeros(len(m), bool) if hmask is None else hmask.ravel().astype(bool)
         if H is None or inl.sum() < p.min_inliers:
             return result(None, REJECTED, f"no homography with {p.min_inliers} inliers", inl)
@@ -164,7 +166,7 @@ def estimate_pair(i: int, j: int, fi: Features, fj: Features, size_i: tuple[int,
         return result(F, REJECTED, f"inliers poorly spread (hull covers {spread:.0%} < {p.min_spread:.0%})",
                       inl, spread, scale=scale)
     # Degeneracy: does one homography explain (almost) all F inliers?
-    H, hmask = _fit_h(p_ref[inl], p_sup[inl], p.ransac_px * 2.0)
+    H, hmask = fit_homography(p_ref[inl], p_sup[inl], p.ransac_px * 2.0)
     hshare = float(hmask.sum()) / n_in if H is not None else 0.0
     if hshare >= p.max_homography_share and p.homography_pairs:
         return _homography_pair(i, j, F, inl, p_ref, p_sup, size_i, size_j, scale, hshare, p, result)
@@ -195,7 +197,7 @@ def _homography_pair(i, j, F, f_inl, p_ref, p_sup, size_i, size_j, scale, hshare
     """Departure (default preset): a pair whose static scene one homography explains (same spot,
     pure rotation, distant or planar scene) is kept as a homography pair instead of dropped.
     Its epipolar strip collapses to the point H gives, which makes it the most informative kind."""
-    H, hmask = _fit_h(p_ref, p_sup, p.ransac_px * 2.0)
+    H, hmask = fit_homography(p_ref, p_sup, p.ransac_px * 2.0)
     if H is None:
         return result(F, REJECTED, "degenerate F and no homography could be fitted", hshare=hshare, scale=scale)
     inl = hmask.ravel().astype(bool)

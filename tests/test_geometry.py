@@ -88,14 +88,14 @@ def test_triplet_check_rejects_a_pair_fooled_by_repetition():
 
 def test_degenerate_samples_give_no_model_not_an_error():
     """OpenCV's USAC asserts on some degenerate samples; the pair is then rejected, never a crash."""
-    from pipeline.support import _fit_f, _fit_h
+    from pipeline.support import _fit_f, fit_homography
     x = np.linspace(0, 100, 30, dtype=np.float32)
     line = np.column_stack([x, 2 * x + 1]).astype(np.float32)
     same = np.repeat(np.array([[5.0, 5.0]], np.float32), 30, axis=0)
     for a, b in ((line, line), (same, same), (line, same)):
         F, mask = _fit_f(a, b, 1.5)
         assert F is None or F.shape == (3, 3)
-        H, hmask = _fit_h(a, b, 3.0)
+        H, hmask = fit_homography(a, b, 3.0)
         assert H is None or H.shape == (3, 3)
 
 
