@@ -506,7 +506,8 @@ def fusion_markdown(report: PixelReport) -> str:
             seen = (f"their median colour difference here is {f.plane_diff:.1f}" if np.isfinite(f.plane_diff)
                     else "none of them covers this point (read as the peer's 0.5: mildly static)")
             lines += ["", f"Then the plane-aligned difference (each support aligned to this photo by the homography "
-                      f"of its matches; {seen}) adds {_signed(f.plane_vote)} to the log-odds for moving: "
+                      f"of its matches; {seen}) adds {_signed(f.plane_vote)} to the log-odds for moving "
+                      f"({_signed(f.plane_vote / f.scale)} on the chart, in the sum's units): "
                       f"the map shows **{f.p_map:.2f}**."]
     else:
         lines += ["| support | colour difference | P alone |", "|---|--:|--:|"]
