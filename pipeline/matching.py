@@ -268,8 +268,8 @@ def splat(st: RefStrips, table: PatchTable, size: tuple[int, int], sigma: float
     win_base = np.concatenate([[0], np.cumsum(st.n_win)[:-1]]).astype(np.int64)
     hog_map, color_map, evidence = _splat_kernel(
         h, w, float(st.epipole[0]), float(st.epipole[1]), float(st.theta_lo), float(st.dtheta), bool(st.circle),
-        int(st.n_fans), st.n_per_fan.astype(np.int64), lut, st.theta_c.astype(np.float64),
-        st.t0.astype(np.float64), st.n_win.astype(np.int64), win_base, int(st.stride), int(st.L),
+        int(st.n_fans), st.n_per_fan.astype(np.int64), lut, np.cos(st.theta_c.astype(np.float64)),
+        np.sin(st.theta_c.astype(np.float64)), st.t0.astype(np.float64), st.n_win.astype(np.int64), win_base, int(st.stride), int(st.L),
         usable, cand, conf_h, conf_c, 1.0 / (2 * sigma * sigma))
     return hog_map, color_map, evidence
 
@@ -280,7 +280,7 @@ def _splat_numba():
     import numba
 
     @numba.njit(cache=True, nogil=True)
-    def kernel(h, w, ex, ey, theta_lo, dtheta, circle, n_fans, n_per_fan, lut, theta_c, t0, n_win, win_base,
+    def kernel(h, w, ex, ey, theta_lo, dtheta, circle, n_fans, n_per_fan, lut, cos_c, sin_c, t0, n_win, win_base,
                stride, L, usable, cand, conf_h, conf_c, inv2s2):
         hog_map = np.empty((h, w), np.float32)
         color_map = np.empty((h, w), np.float32)
@@ -288,10 +288,14 @@ def _splat_numba():
         two_pi = 2.0 * np.pi
         o = 0.0 if circle else 1.0
         n_patches = len(usable)
+        n_off = L // stride
+        # The Gaussian of the m-th covering patch along a strip, whose centre is m strides back
+        # from the nearest: exp(-((d0 + m s)^2 + u^2) a) = exp(-(d0^2 + u^2) a) q^m exp(-m^2 s^2 a),
+        # q = exp(-2 d0 s a): two exponentials per strip instead of one per patch.
+        tail = np.exp(-(np.arange(n_off) * stride) ** 2 * inv2s2)
         for y in range(h):
             for x in range(w):
                 dx, dy = x - ex, y - ey
-                r = math.hypot(dx, dy)
                 theta = math.atan2(dy, dx)
                 rel = (theta - theta_lo) % two_pi
                 w_all = w_cand = s_hog = s_col = 0.0
@@ -304,19 +308,22 @@ def _splat_numba():
                     s = lut[f, k]
                     if s < 0:
                         continue
-                    dth = theta - theta_c[s]
-                    t = r * math.cos(dth)
-                    u2 = (r * math.sin(dth)) ** 2
+                    t = dx * cos_c[s] + dy * sin_c[s]            # along the strip's axis: r cos(theta - theta_c)
+                    u = dy * cos_c[s] - dx * sin_c[s]            # across it: r sin(theta - theta_c)
                     if t < 0:
                         continue
                     j_hi = int(math.floor((t - t0[s]) / stride))
-                    for m in range(L // stride):
+                    d0 = t - (t0[s] + j_hi * stride + L / 2)
+                    g = math.exp(-(d0 * d0 + u * u) * inv2s2)
+                    q = math.exp(-2.0 * d0 * stride * inv2s2)
+                    qm = 1.0
+                    for m in range(n_off):
                         j = j_hi - m
+                        wgt = g * qm * tail[m]
+                        qm *= q
                         if j < 0 or j >= n_win[s]:
                             continue
                         pid = min(win_base[s] + j, n_patches - 1)
-                        tc = t0[s] + j * stride + L / 2
-                        wgt = math.exp(-((t - tc) ** 2 + u2) * inv2s2)
                         if usable[pid]:
                             w_all += wgt
                         if cand[pid]:

@@ -129,7 +129,8 @@ class SweepParams:
 
     enabled: bool = False
     scale: float = 0.5                 # sweep grid / working resolution (320 x 240 at 640); EVIDENCE_NOTES 10
-    n_planes: int = 150                # planes uniform in inverse depth over the reference's depth range
+    n_planes: int = 75                 # planes uniform in inverse depth over the reference's depth range (150
+                                       # until the sweep was made faster: the same quality, README "Benchmark")
     ground_planes: int = 0             # planes parallel to the set's ground (when it has one), ground to camera
     window: int = 7                    # SSIM window on the sweep grid (14 px at 640)
     lab_weights: tuple[float, float, float] = (1.0, 2.0, 2.0)   # L, a, b: colour counts double
@@ -279,7 +280,7 @@ PRESETS: dict[str, Params] = {
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
                                   calib_scale=1.544, calib_offset=-0.65,
                                   plane_weight=0.6, plane_dynamic_cap=0.5),
-        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=48, same_spot_px=8.0,
+        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_px=8.0,
                           smooth_p2=4.0, two_supports_agree=True),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.

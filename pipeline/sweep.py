@@ -193,14 +193,24 @@ def _quantise(cost: np.ndarray) -> np.ndarray:
     return q
 
 
-def warp(sup_lab: np.ndarray, H_grid: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Support image sampled at H x for every reference grid pixel x: ((h, w, 3), (h, w) valid)."""
+def warp(sup_ones: np.ndarray, H_grid: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """The support sampled at H x for every reference grid pixel x, (h, w, 4) float32.
+
+    sup_ones: (h, w, 4) float32, the support's colours and a channel of ones, warped together:
+    where all four bilinear taps fall inside the support the ones channel is 1 (valid, > 0.999),
+    and there the colours do not depend on the border mode; elsewhere the comparison is UNSEEN
+    anyway. One 4-channel warp costs less than the colours' and the mask's apart."""
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    size = (grid[1], grid[0])
-    img = cv2.warpPerspective(sup_lab, H_grid, size, flags=flags, borderMode=cv2.BORDER_REPLICATE)
-    ones = np.ones(sup_lab.shape[:2], np.float32)
-    valid = cv2.warpPerspective(ones, H_grid, size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return img, (valid > 0.999).astype(np.float32)
+    return cv2.warpPerspective(sup_ones, H_grid, (grid[1], grid[0]), flags=flags, borderMode=cv2.BORDER_CONSTANT,
+                               borderValue=0)
+
+
+def window_inside(valid: np.ndarray, k: int) -> np.ndarray:
+    """(h, w) uint8, 1 where the k x k window around a pixel is wholly valid (valid: (h, w) uint8, 0 / 1).
+
+    The same as a box filter of valid above 0.999 with reflected borders (a reflected pixel is one
+    the window holds anyway), as an erosion of bytes: a fifth of the float box filter's time."""
+    return cv2.erode(valid, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REFLECT)
 
 
 # ----------------------------------------------------------------------------- per pair
@@ -225,11 +235,16 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
     per_plane = np.empty((len(Hs), *g_ref), np.uint8)
     k = sp.window
     lum_l = 1.0 if sp.lightness_mean else 0.0
+    sup_ones = np.dstack([sup_lab, np.ones(sup_lab.shape[:2], np.float32)])
+    sq, cross = np.zeros((*g_ref, 4), np.float32), np.zeros((*g_ref, 4), np.float32)
+    valid = np.empty(g_ref, np.uint8)
     for d, H in enumerate(Hs):          # one warp and comparison per plane (a hypothesis, not a pixel)
-        img, valid = warp(sup_lab, H, g_ref)
-        # window sums by box filters (OpenCV), then SSIM and quantisation in one compiled pass
-        per_plane[d] = _ssim_kernel(rs.lab, rs.mean, rs.var, _box(img, k), _box(img * img, k), _box(rs.lab * img, k),
-                                    _box(valid, k), float(sp.ssim_c1), float(sp.ssim_c2), lum_l,
+        warped = warp(sup_ones, H, g_ref)
+        _products_kernel(warped, rs.lab, sq, cross, valid)
+        # window sums by box filters (OpenCV, on 4 channels: faster than on 3), then SSIM and
+        # quantisation in one compiled pass
+        per_plane[d] = _ssim_kernel(rs.lab, rs.mean, rs.var, _box(warped, k), _box(sq, k), _box(cross, k),
+                                    window_inside(valid, k), float(sp.ssim_c1), float(sp.ssim_c2), lum_l,
                                     float(sp.color_weight), float(sp.color_tau))
     cost = np.ascontiguousarray(per_plane.transpose(1, 2, 0))
     return SweepPair(ref, sup, cost, planes, time.perf_counter() - t0)
@@ -454,18 +469,41 @@ def _sgm_numba():
     return kernel
 
 
-def _ssim_numba():
-    """ssim_cost's arithmetic and _quantise in one pass over the pixels (numba): numpy makes a
-    dozen full-size temporaries per plane, which cost more than the box filters themselves."""
+def _products_numba():
+    """The warp's squares and products with the reference, per colour channel, and its valid mask,
+    in one pass (numba) into preallocated 4-channel arrays (the fourth stays 0): OpenCV's box
+    filter is faster on 4 channels than on 3, and numpy on views of the warp is strided."""
     import numba
 
     @numba.njit(cache=True, nogil=True)
+    def kernel(warped, ref, sq, cross, valid):
+        H, W, C = ref.shape
+        for y in range(H):
+            for x in range(W):
+                valid[y, x] = 1 if warped[y, x, C] > 0.999 else 0
+                for c in range(C):
+                    v = warped[y, x, c]
+                    sq[y, x, c] = v * v
+                    cross[y, x, c] = ref[y, x, c] * v
+    return kernel
+
+
+def _ssim_numba():
+    """ssim_cost's arithmetic and _quantise in one pass over the pixels (numba): numpy makes a
+    dozen full-size temporaries per plane, which cost more than the box filters themselves.
+    mu, sq, cross: (h, w, 4) window means of the warp, of its squares and of its products with the
+    reference (the fourth channel unused); inside: (h, w) uint8 (window_inside). fastmath (the
+    inputs are finite box sums): 2.5x faster, the quantised cost one step off in about one voxel
+    in 20 000 (tests/test_sweep.py holds it to its numpy definition)."""
+    import numba
+
+    @numba.njit(cache=True, nogil=True, fastmath=True)
     def kernel(ref, ref_mean, ref_var, mu, sq, cross, inside, c1, c2, lum_l, w_col, tau):
-        H, W, C = mu.shape
+        H, W, C = ref.shape
         out = np.empty((H, W), np.uint8)
         for y in range(H):
             for x in range(W):
-                if inside[y, x] <= 0.999:
+                if inside[y, x] == 0:             # the window is not wholly inside the support
                     out[y, x] = UNSEEN
                     continue
                 acc = 0.0
@@ -493,3 +531,4 @@ def _ssim_numba():
 _volume_kernel = LazyKernel(_volume_numba)
 _sgm_kernel = LazyKernel(_sgm_numba)
 _ssim_kernel = LazyKernel(_ssim_numba)
+_products_kernel = LazyKernel(_products_numba)
