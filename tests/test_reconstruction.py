@@ -187,3 +187,32 @@ def test_a_planar_pair_is_rescued_only_when_the_setting_says_so(recon_run):
     assert "on one plane" in kept[(i, j)].reason and "degenerate F" in kept[(i, j)].reason
     # pairs that passed their own tests are not touched by the setting
     assert all(kept[ij].source == rescued[ij].source for ij in pairs if ij not in ((i, j), (j, i)))
+
+
+def test_line_uncertainty_is_the_spread_of_lines_of_poses_drawn_from_the_covariance():
+    """line_uncertainty draws all its poses at once; the same as drawing them one at a time."""
+    import cv2
+
+    from pipeline.reconstruction import line_uncertainty
+    rng = np.random.default_rng(2)
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    A = rng.normal(size=(6, 6))
+    cov = A @ A.T * 1e-5
+    R, _ = cv2.Rodrigues(np.array([0.1, -0.2, 0.05]))
+    t = np.array([1.0, 0.1, 0.2])
+    x, y = rng.uniform(0, 600, (60, 2)), rng.uniform(0, 400, (60, 2))
+
+    def skew(v):
+        return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+    draws = np.random.default_rng(7)
+    L = np.linalg.cholesky(cov + 1e-18 * np.eye(6))
+    d2 = np.zeros(len(x))
+    for _ in range(32):
+        dlt = L @ draws.standard_normal(6)
+        F = np.linalg.inv(K).T @ skew(t + dlt[3:]) @ cv2.Rodrigues(dlt[:3])[0] @ R @ np.linalg.inv(K)
+        lines = np.column_stack([x, np.ones(len(x))]) @ F.T
+        d = (np.sum(lines[:, :2] * y, axis=1) + lines[:, 2]) / np.linalg.norm(lines[:, :2], axis=1)
+        d2 += d * d
+    want = np.percentile(np.sqrt(d2 / 32), 90)
+    assert line_uncertainty(K, K, R, t, cov, x, y, samples=32, seed=7) == pytest.approx(want, rel=1e-9)
