@@ -269,8 +269,8 @@ def splat(st: RefStrips, table: PatchTable, size: tuple[int, int], sigma: float
     hog_map, color_map, evidence = _splat_kernel(
         h, w, float(st.epipole[0]), float(st.epipole[1]), float(st.theta_lo), float(st.dtheta), bool(st.circle),
         int(st.n_fans), st.n_per_fan.astype(np.int64), lut, np.cos(st.theta_c.astype(np.float64)),
-        np.sin(st.theta_c.astype(np.float64)), st.t0.astype(np.float64), st.n_win.astype(np.int64), win_base, int(st.stride), int(st.L),
-        usable, cand, conf_h, conf_c, 1.0 / (2 * sigma * sigma))
+        np.sin(st.theta_c.astype(np.float64)), st.t0.astype(np.float64), st.n_win.astype(np.int64), win_base,
+        int(st.stride), int(st.L), usable, cand, conf_h, conf_c, 1.0 / (2 * sigma * sigma))
     return hog_map, color_map, evidence
 
 
