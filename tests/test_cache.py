@@ -128,6 +128,11 @@ def test_a_volume_stored_as_differences_comes_back_exactly():
     back = from_bytes(SweepPair, to_bytes(pair, delta=("cost",)))
     assert back.cost.dtype == np.uint8 and np.array_equal(back.cost, cost)
     assert from_bytes(SweepPair, to_bytes(pair)).cost.tobytes() == cost.tobytes()     # without, as before
+    # what is stored is np.diff's differences (the compiled pass writes the format entries had before)
+    from pipeline.cache import _npz
+    with _npz(to_bytes(pair, delta=("cost",))) as z:
+        stored = z["cost"]
+    assert np.array_equal(stored, np.diff(cost, axis=-1, prepend=np.zeros((5, 6, 1), np.uint8)))
 
 
 def test_entries_are_zstd_framed_and_older_deflated_entries_still_read():
