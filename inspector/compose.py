@@ -240,7 +240,7 @@ def fusion(snap: SetResult, settings: Settings, terms: TermCache, dyn: np.ndarra
         speaks = bool(snap.has_evidence(i, sups, p)[v, u])
     p_raw = float(1.0 / (1.0 + np.exp(-scale * (total + offset)))) if speaks else 0.5
     plane_vote = plane_diff = p_before = float("nan")
-    z = snap.plane_log_odds(i, sups, p) if p.sweep.enabled else None
+    z = snap.plane_log_odds(i, sups, p)
     if z is not None:                # SetResult.with_plane_cue, at one pixel
         a = p.aggregate
         plane_vote = -a.plane_weight * float(z[v, u])

@@ -207,6 +207,13 @@ class Params:
             p = dataclasses.replace(p, **{section: holder}) if section else holder
         return p
 
+    @property
+    def plane_cue(self) -> bool:
+        """The map adds the plane-aligned difference (SetResult.with_plane_cue): a weight for it, and
+        the depth-consistent fusion it is added to (Eq. 3's plain sum and the peer's map take none).
+        Pairs compute the difference only then (run._task_pair)."""
+        return self.aggregate.plane_weight > 0 and self.sweep.enabled and not self.geometry.peer_homography
+
     def pair_key_material(self) -> str:
         """The parameters a per-pair matching result depends on, as canonical JSON."""
         d = {"max_side": self.max_side, "patches": dataclasses.asdict(self.patches),

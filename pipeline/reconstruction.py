@@ -445,7 +445,8 @@ def line_uncertainty(Ki, Kj, R_rel, t_rel, cov6, x_i: np.ndarray, y_j: np.ndarra
     in photo j (at the scene's depths, `_scene_samples`); their distance to the epipolar lines of
     poses drawn from the covariance is the lines' spread where it matters: all over the image, not
     only at the matches. The poses are drawn all at once (the same draws as one at a time) and their
-    lines computed together: a loop over them was most of the reconstruction's check on large sets.
+    lines computed together (about 1.1 -> 0.9 ms a call: the lines' arithmetic, not the loop, is
+    most of it).
     """
     try:
         L = np.linalg.cholesky(cov6 + 1e-18 * np.eye(6))

@@ -293,7 +293,7 @@ def log_dynamic(res, rec, stems, gts: dict, threshold: float, focus: int | None 
             inv = np.where((f.plane >= 0) & np.isfinite(z), 1.0 / np.maximum(z, 1e-9), 0.0)
             rec.log(f"{base}/depth", rr.DepthImage(np.round(inv / max(inv.max(), 1e-9) * 255).astype(np.uint8),
                                                    meter=255.0, colormap="viridis"), static=True)
-        plane = res.plane_log_odds(i, res.supports[i]) if res.params.sweep.enabled else None
+        plane = res.plane_log_odds(i, res.supports[i])
         if plane is not None:
             # the plane-aligned difference's vote for "moving", as the map adds it: turbo, red = moving
             a = res.params.aggregate

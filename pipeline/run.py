@@ -158,10 +158,10 @@ class SetResult:
 
     def plane_log_odds(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray | None:
         """The plane-aligned difference over `supports` as static log-odds (peer.plane_log_odds),
-        (h, w) float32; None when the preset does not use the cue or no support has such a
-        difference (no homography of its matches)."""
+        (h, w) float32; None when the map does not use the cue (Params.plane_cue) or no support has
+        such a difference (no homography of its matches)."""
         p = params or self.params
-        if not p.aggregate.plane_weight > 0:
+        if not p.plane_cue:
             return None
         diffs = self.plane_diffs(i, supports)
         return np.maximum(plane_log_odds(diffs, p.aggregate.plane_neutral), -p.aggregate.plane_dynamic_cap) \
@@ -381,7 +381,7 @@ def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None)
         # `direct_reach_frac` beyond); parallax past it reads as change at once, unlike the patch search
         inside = inside * (reach_distance(g.inliers_ref, (h, w)) <= p.sweep.direct_reach_frac * max(h, w))
         r = dataclasses.replace(r, sweep=aligned_pair(i, j, rgb_i, warped, inside.astype(np.float32), p.sweep))
-    if p.aggregate.plane_weight > 0:
+    if p.plane_cue:
         # the plane-aligned difference (peer.py's cue, one term of our fusion): every match of the pair
         diff, _ = plane_difference(i, j, rgb_i, rgb_j, np.concatenate([g.inliers_ref, g.outliers_ref]),
                                    np.concatenate([g.inliers_sup, g.outliers_sup]), p.geometry.ransac_px * 2.0,
@@ -840,7 +840,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             elif g.is_homography and params.sweep.enabled and params.sweep.direct_homography \
                     and g.uncertainty_px <= params.sweep.direct_max_parallax_frac * max(photos[i].size):
                 parts += [params.sweep_key_material(), "aligned", str(params.patches.homography_reach_frac)]
-            if params.aggregate.plane_weight > 0:     # the pair holds its plane-aligned difference too
+            if params.plane_cue:                      # the pair holds its plane-aligned difference too
                 parts += ["plane", str(params.geometry.ransac_px), str(params.geometry.min_inliers)]
             pkey[(i, j)] = cache_mod.key("pair", *parts)
 

@@ -30,3 +30,13 @@ def test_a_bad_setting_is_one_line_naming_it(setting, expect):
         get_preset("default").with_settings([setting])
     msg = str(e.value)
     assert expect in msg and setting in msg and "\n" not in msg
+
+
+def test_the_plane_cue_is_on_only_where_the_map_adds_it():
+    """Params.plane_cue: a weight and the depth-consistent fusion; Eq. 3's sum (paper) and the
+    peer's own map take none, whatever the weight says."""
+    assert get_preset("default").plane_cue
+    assert not get_preset("default").with_settings(["aggregate.plane_weight=0"]).plane_cue
+    assert not get_preset("paper").plane_cue
+    assert not get_preset("paper").with_settings(["aggregate.plane_weight=0.6"]).plane_cue
+    assert not get_preset("peer-homography").with_settings(["aggregate.plane_weight=0.6"]).plane_cue
