@@ -42,6 +42,8 @@ class RerunWeb:
         self.host = host
         self.grpc_port = grpc_port or _free_port(host)
         self.web_port = web_port or _free_port(host)
+        while self.web_port == self.grpc_port:      # two free ports asked one after the other can be one
+            self.web_port = _free_port(host)
         self.proc = subprocess.Popen(
             [str(binary), "--serve-web", "--bind", host, "--port", str(self.grpc_port),
              "--web-viewer-port", str(self.web_port)],

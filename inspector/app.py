@@ -144,6 +144,8 @@ class Redrawer:
             with self._lock:
                 what, self._pending = self._pending, set()
                 self._wake.clear()
+            if self._stopped:          # stop() may have set the wake-up this clear() just took away
+                return
             if what:
                 try:
                     self._draw(what)

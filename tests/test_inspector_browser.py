@@ -15,6 +15,7 @@ idle events and Playwright's own auto-waiting locators, and hold a draw with an 
 
 import re
 import threading
+import time
 from urllib.parse import urlparse
 
 import numpy as np
@@ -85,6 +86,16 @@ def canvas_shot(page, path):
     return page.locator("canvas").first.screenshot(path=str(path))
 
 
+def new_canvas_shot(page, path, before: bytes) -> bytes:
+    """The canvas once it shows a picture other than `before`: the server has published the new
+    picture when the tab is settled, but the browser still receives, decodes and draws it."""
+    deadline = time.time() + 60
+    while (shot := canvas_shot(page, path)) == before:
+        assert time.time() < deadline, "timed out waiting for the new picture"
+        time.sleep(0.1)
+    return shot
+
+
 def click_pixel(page, tab, u, v):
     """Click working pixel (u, v) of the reference where the browser's camera shows it."""
     box = page.locator("canvas").first.bounding_box()
@@ -136,8 +147,7 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page.get_by_role("option", name=stems[ref], exact=True).click()
     wait_event(tab, "ref", lambda v: v == stems[ref], after=n)
     settled(tab)
-    b = canvas_shot(page, shots / "2_reference.png")
-    assert a != b
+    b = new_canvas_shot(page, shots / "2_reference.png", a)
 
     # 3. untick a support: the map is Eq. 3 over the others, and the count says so
     sups = snap.supports[ref]
@@ -149,16 +159,14 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     want = snap.dynamic_prob(ref, [j for j in sups if j != off], tab.settings.params())
     np.testing.assert_allclose(tab.dyn, want, atol=1e-5)
     assert f"{len(sups) - 1} of {len(sups)} supports on" in tab.md_sup.content
-    c = canvas_shot(page, shots / "3_support_off.png")
-    assert c != b
+    c = new_canvas_shot(page, shots / "3_support_off.png", b)
 
     # 4. the threshold, through its number box
     n = len(tab.events)
     set_number(page, tab.sl_thr, "0.3")
     wait_event(tab, "settings", lambda s: abs(s.threshold - 0.3) < 1e-9, after=n)
     settled(tab)
-    d = canvas_shot(page, shots / "4_threshold.png")
-    assert d != c
+    d = new_canvas_shot(page, shots / "4_threshold.png", c)
     assert "Jaccard at 0.300" in tab.md_eval.content
     assert tab.score is not None and 0.0 <= tab.score.at_threshold <= tab.score.best <= 1.0
 
@@ -243,7 +251,9 @@ def _forward(cam) -> np.ndarray:
 
 
 def _camera_report(page, tab, size) -> None:
-    """Make the browser report its camera now (a viewport change does), and wait for it."""
+    """Make the browser report its camera now (a viewport change does), and wait for it. The sizes
+    differ by 2 px: viser may lower the canvas's pixel ratio (to 0.75 after slow frames), and then a
+    1 px change can leave the canvas's width, which the report carries, as it was."""
     n, w0 = tab.camera_reports, tab.client.camera.image_width
     page.set_viewport_size({"width": size[0], "height": size[1]})
     wait_for(lambda: tab.camera_reports > n and tab.client.camera.image_width != w0, what="a camera report")
@@ -267,7 +277,7 @@ def test_keys_on_a_control_leave_the_photo_straight(app, browser, shots):
     page.keyboard.up("ArrowRight")
     assert tab.settings.threshold == pytest.approx(t0 + 0.005)
     assert thumb.get_attribute("aria-valuenow") == f"{t0 + 0.005:g}"
-    _camera_report(page, tab, (1281, 720))
+    _camera_report(page, tab, (1282, 720))
     assert _forward(cam)[2] > 0.99999, _forward(cam)
     assert sum(e[0] == "camera straightened" for e in tab.events) == n_straight   # it never turned
 
@@ -305,7 +315,7 @@ def test_keys_on_a_control_leave_the_photo_straight(app, browser, shots):
         page.mouse.move(x, y - 12 * k, steps=2)
     wait_event(tab, "camera straightened", after=n)
     page.mouse.up()
-    _camera_report(page, tab, (1281, 720))
+    _camera_report(page, tab, (1282, 720))
     wait_for(lambda: _forward(cam)[2] > 0.99999, what="the straight camera")
     # the zoom is kept, not reset to the fit (the wheel's zoom eases out over a few frames, so
     # `zoomed` may be read before its end: at least that far, and still clearly zoomed out)
@@ -411,7 +421,8 @@ def test_use_the_best_threshold(app, browser, shots):
     page.get_by_role("button", name=re.compile(r"^Use this photo's best threshold")).last.click()
     wait_event(tab, "settings", lambda s: abs(s.threshold - best) < 1e-9, after=n)
     settled(tab)
-    assert number_box(page, tab.sl_thr).input_value() == f"{best:g}"
+    # the page shows it once the server's update arrives (as below)
+    wait_for(lambda: number_box(page, tab.sl_thr).input_value() == f"{best:g}", 60, "the box to show the threshold")
     assert tab.score.at_threshold == pytest.approx(tab.score.best)
 
     snap = app.models["default"].snapshot()
@@ -474,7 +485,7 @@ def test_geometry_view_in_3d(app, browser, shots):
 
     # the browser has the overview camera (a report after a viewport change says so)
     overview = np.asarray(tab.client.camera.position).copy()
-    _camera_report(page, tab, (1281, 720))
+    _camera_report(page, tab, (1282, 720))
     assert np.allclose(tab.client.camera.position, overview, atol=1e-6)
 
     # click a pixel of the reference's picture

@@ -157,6 +157,8 @@ def test_gallery_entry_opens_its_explanation(browser, cache_dir):
         shown_text(page, f"Failure gallery of {app.stems[other]}").first.wait_for(timeout=10_000)
         assert tab.gallery.compute_ms
     finally:
+        for ctx in browser.contexts:     # no page left to reconnect to a later app on the same port
+            ctx.close()
         app.close()
 
 
@@ -180,6 +182,8 @@ def test_gallery_without_ground_truth_lists_uncertain_regions(browser, cache_dir
             settled(tab)
             np.testing.assert_array_equal(tab.report.xy, list(e.region.pixel))
     finally:
+        for ctx in browser.contexts:     # no page left to reconnect to a later app on the same port
+            ctx.close()
         app.close()
 
 
@@ -206,6 +210,8 @@ def test_presets_side_by_side_stay_in_sync(browser, cache_dir):
             page.get_by_role("button", name=f"Compute {p}", exact=True).click()
             wait_event(tab, "presets compute", lambda v, p=p: v == p, after=n)
             wait_for(lambda p=p: presets_state(tab).get(p) == "map", 600, f"the {p} map")
+            # the shown photo's map comes before the run ends, and the next button waits for the end
+            wait_for(lambda p=p: app.models[p].status == "done", 900, f"the {p} run")
         pp.draw.wait_idle(120)
         for p in PRESETS_SHOWN:                              # each with its Jaccard (ground truth)
             shown_text(page, re.compile(rf"^{re.escape(p)}: threshold .* Jaccard \d\.\d{{3}}")).first.wait_for(
@@ -247,4 +253,6 @@ def test_presets_side_by_side_stay_in_sync(browser, cache_dir):
         page.get_by_role("tab", name="Presets").click()
         page.screenshot(path=str(cache_dir / "presets.png"))
     finally:
+        for ctx in browser.contexts:     # no page left to reconnect to a later app on the same port
+            ctx.close()
         app.close()

@@ -138,10 +138,12 @@ def test_click_a_thumbnail_to_show_that_photo(app, browser, tmp_path):
     assert page.locator(".cc-cell").count() == N_PHOTOS
     assert not page.get_by_label(PICK_LABEL).is_visible()          # the field a click writes to is hidden
     for k, sups in enumerate(model.supports):
+        # the badge first: the page applies the style sheet that writes both words a moment after the
+        # server has sent it, so the supports are read once the badge shows the held state
+        want = "no map" if not sups else (f"computing 0/{len(sups)}" if k == first else "queued")
+        wait_cell(page, k, want)
         badge, sup = cell_words(page, k)
         assert sup == (f"{len(sups)} supports" if len(sups) > 1 else "1 support" if sups else "no support")
-        want = "no map" if not sups else (f"computing 0/{len(sups)}" if k == first else "queued")
-        wait_cell(page, k, want)                     # (drawn by the same redraw as the supports)
     assert shown_tag_visible(page, first)
     page.screenshot(path=str(tmp_path / "picker_held.png"))
 

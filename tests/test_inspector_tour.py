@@ -180,6 +180,9 @@ def test_tour_walk_keys_and_click(browser, app):
         page.get_by_role("button", name="Next ▶").click()
         wait_event(tab, "tour", lambda v: v == 7, after=n)
         assert [e for e in tab.events[n:] if e[0] == "tour"] == [("tour", 7)]
+        # "tour" is recorded when the step is chosen; its picture (and camera fit) come after
+        wait_event(tab, "tour shown", lambda v: v == 7, after=n)
+        settled(tab)
     # a step directly
     n, reports, shape = len(tab.events), tab.camera_reports, tour.layout.rgb.shape
     page.get_by_role("button", name="2", exact=True).click()
@@ -200,9 +203,13 @@ def test_tour_walk_keys_and_click(browser, app):
         bb = page.locator("canvas").first.bounding_box()
         n, reports = len(tab.events), tab.camera_reports
         page.mouse.click(bb["x"] + fx * bb["width"], bb["y"] + fy * bb["height"])
-        wait_event(tab, "pixel", after=n)
-        if np.allclose(tab.pixel, (u, v), atol=1.5):
-            break
+        try:                        # a click predicted off the reference's picture records no pixel
+            wait_event(tab, "pixel", after=n, timeout=15)
+        except AssertionError:
+            pass
+        else:
+            if np.allclose(tab.pixel, (u, v), atol=1.5):
+                break
         page.mouse.move(bb["x"] + bb["width"] / 2, bb["y"] + bb["height"] / 2)
         page.set_viewport_size({"width": page.viewport_size["width"] + 1 - 2 * (attempt % 2),
                                 "height": page.viewport_size["height"]})     # a resize makes the browser report
