@@ -1073,6 +1073,7 @@ class Session:
         else:
             what = {"pairs": "Matching pairs", "geometry": "Estimating geometry",
                     "features": "Finding features", "screen": "Choosing which pairs to compare",
+                    "cameras": "Reconstructing the cameras",
                     "maps": "Making each photo's map"}.get(stage, "Starting")
             tail = "Each map shows as soon as it is made." if stage == "maps" else "Maps fill in as pairs finish."
             text = f"{what}: {done} / {total} ({model.preset} preset). {tail}"

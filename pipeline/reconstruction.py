@@ -25,6 +25,7 @@ import os
 import tempfile
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -135,7 +136,8 @@ def _input_pairs(pairs: dict, n: int, min_matches: int) -> list[tuple[int, int, 
 
 
 def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs: dict,
-                rgbs: list[np.ndarray], p: GeometryParams, focal_prior: np.ndarray | None = None) -> SetCameras:
+                rgbs: list[np.ndarray], p: GeometryParams, focal_prior: np.ndarray | None = None,
+                run_maps: Callable[[list[tuple]], list[tuple]] | None = None) -> SetCameras:
     """Cameras of the whole set from our keypoints and verified pair matches, then checked.
 
     keypoints: per photo (N_i, 2) float32 working pixels (the indices that PairGeometry.inlier_idx
@@ -146,6 +148,9 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
     determined by the photos (the focal-depth ambiguity of planar or collinear scenes), or a group
     of cameras is held to the rest by one plane, the two runs end apart: such cameras are dropped
     and such pairs get the disagreement as their uncertainty.
+
+    run_maps: runs `map_task` on each argument tuple and returns the results in order (run.py hands
+    the two runs to its worker processes, side by side); default: one after the other, here.
     """
     import dataclasses
 
@@ -155,15 +160,15 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
     links = _input_pairs(pairs, n, p.recon_min_matches)
     if n < 3 or len(links) < 2:
         return SetCameras.empty(n, "the set has too few overlapping photos for a reconstruction", prior)
+    # Side by side in processes, not threads: in two threads of one process (pycolmap lets go of
+    # the GIL) the runs drew from one random generator and their cameras came out up to 3e-4 apart
+    # from those of runs one at a time; in a process each, they are the same bit for bit.
+    tasks = [(keypoints, sizes, links, p, prior, guess) for guess in p.recon_focal_guesses]
     runs = []
-    # one after the other: side by side in two threads (pycolmap lets go of the GIL) they took 61 s
-    # instead of 80 s on a hundred photos, but their cameras came out up to 3e-4 apart from those of
-    # runs one at a time, which are the same bit for bit from run to run
-    for guess in p.recon_focal_guesses:
-        try:
-            runs.append(_map(keypoints, sizes, links, p, prior, guess))
-        except Exception as e:                  # a failed reconstruction is a fallback, not a crash
-            return SetCameras.empty(n, f"the reconstruction failed ({type(e).__name__}: {e})", prior)
+    for failure, model, ids, n_models in (run_maps or _run_here)(tasks):
+        if failure:                              # a failed reconstruction is a fallback, not a crash
+            return SetCameras.empty(n, f"the reconstruction failed ({failure})", prior)
+        runs.append((_model_from_bytes(model), ids, n_models))
     (rec, ids, n_models), others = runs[0], runs[1:]
     if rec is None:
         return SetCameras.empty(n, "no initial pair of photos could be reconstructed", prior)
@@ -176,6 +181,38 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
         cams, spread = _compare_runs(cams, alt, sizes, p)
         unc = np.fmax(unc, spread)
     return dataclasses.replace(cams, pair_unc=unc, seconds=time.perf_counter() - t0)
+
+
+def map_task(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_guess: float
+             ) -> tuple[str, dict[str, bytes] | None, list[int], int]:
+    """One mapping run (`_map`) as a task for a worker process: (failure or "", the model's COLMAP
+    binary files or None, image ids per photo, number of models). The files hold the model's
+    doubles as they are, so the model read back is the one the worker made, bit for bit."""
+    try:
+        rec, ids, n_models = _map(keypoints, sizes, links, p, prior, focal_guess)
+    except Exception as e:
+        return f"{type(e).__name__}: {e}", None, [], 0
+    if rec is None:
+        return "", None, ids, n_models
+    with tempfile.TemporaryDirectory(prefix="crowdcam-model-") as tmp:
+        rec.write_binary(tmp)
+        files = {name: open(os.path.join(tmp, name), "rb").read() for name in sorted(os.listdir(tmp))}
+    return "", files, ids, n_models
+
+
+def _run_here(tasks: list[tuple]) -> list[tuple]:
+    return [map_task(*t) for t in tasks]
+
+
+def _model_from_bytes(files: dict[str, bytes] | None):
+    if files is None:
+        return None
+    import pycolmap
+    with tempfile.TemporaryDirectory(prefix="crowdcam-model-") as tmp:
+        for name, data in files.items():
+            with open(os.path.join(tmp, name), "wb") as f:
+                f.write(data)
+        return pycolmap.Reconstruction(tmp)
 
 
 def _map(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_guess: float):
@@ -497,8 +534,10 @@ def _pair_uncertainty(rec, ids: list[int], cams: SetCameras, sizes) -> np.ndarra
             R_rel, t_rel = rel.rotation.matrix(), np.asarray(rel.translation)
             xi, yj = _scene_samples(cams, i, j, sizes)
             if len(xi):
-                out[i, j] = line_uncertainty(cams.K[i], cams.K[j], R_rel, t_rel, np.asarray(c) * sigma2, xi, yj,
-                                             seed=int(i * n + j))
+                # to a micro-pixel: the covariance's last bits follow where its blocks lie in memory
+                # (a model read back from the worker's files: 1e-12 px from run to run)
+                out[i, j] = round(line_uncertainty(cams.K[i], cams.K[j], R_rel, t_rel, np.asarray(c) * sigma2, xi, yj,
+                                                   seed=int(i * n + j)), 6)
     return out
 
 

@@ -30,7 +30,7 @@ from .matching import PairResult, match_pair
 from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
-from .reconstruction import SetCameras, apply_reconstruction, ground_plane, reconstruct
+from .reconstruction import SetCameras, apply_reconstruction, ground_plane, map_task, reconstruct
 from .store import PairStore, light_of
 from .screen import screen_pairs, shared_features
 from .support import (PairGeometry, cap_supports, estimate_pair, not_compared, support_sets, triplet_check,
@@ -647,17 +647,35 @@ def _digest_arrays(*arrays) -> str:
     return h.hexdigest()[:24]
 
 
+def _task_map(k: int, *task) -> tuple[int, tuple]:
+    return k, map_task(*task)
+
+
 def set_cameras(photo_set: PhotoSet, params: Params, pairs: dict, keypoints: list[np.ndarray],
-                cache: cache_mod.PairCache) -> SetCameras:
+                cache: cache_mod.PairCache, runner=None,
+                progress: Callable[[str, int, int], None] = lambda *a: None) -> SetCameras:
     """The checked reconstruction of the set (reconstruction.py), cached: it depends on every
-    photo and on the geometry parameters. pairs: PairGeometry per unordered pair (i < j)."""
+    photo and on the geometry parameters. pairs: PairGeometry per unordered pair (i < j).
+    runner (_Runner or _DaskRunner): where the mapping runs go, side by side (default: here)."""
     photos = photo_set.photos
     k = cache_mod.key("cameras", *[p.key for p in photos], params.geometry_key_material())
     cams = cache.load("cameras", k, lambda d: cache_mod.from_bytes(SetCameras, d))
     if cams is not None:
         return cams
     prior = np.array([p.focal_prior_px if p.focal_prior_px else np.nan for p in photos], float)
-    cams = reconstruct(keypoints, [p.size for p in photos], pairs, [p.rgb for p in photos], params.geometry, prior)
+
+    def run_maps(tasks: list[tuple]) -> list[tuple]:
+        out: dict[int, tuple] = {}
+        progress("cameras", 0, len(tasks))
+
+        def got(res):
+            out[res[0]] = res[1]
+            progress("cameras", len(out), len(tasks))
+        runner.map(_task_map, [(k, *t) for k, t in enumerate(tasks)], got,
+                   label=lambda a: f"the reconstruction of {photo_set.root}")
+        return [out[k] for k in range(len(tasks))]
+    cams = reconstruct(keypoints, [p.size for p in photos], pairs, [p.rgb for p in photos], params.geometry, prior,
+                       run_maps=run_maps if runner is not None else None)
     cache.put("cameras", k, cache_mod.to_bytes(cams))
     return cams
 
@@ -780,7 +798,9 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         feats.clear()                    # descriptors: 4 MB a photo, not needed from here on
         cameras = None
         if params.geometry.reconstruction:
-            cameras = set_cameras(photo_set, params, pairs, keypoints, cache)
+            t_cams = time.perf_counter()
+            cameras = set_cameras(photo_set, params, pairs, keypoints, cache, runner, progress)
+            timings["cameras_s"] = time.perf_counter() - t_cams       # part of geometry_s
         for (i, j) in list(pairs):
             pairs[(j, i)] = pairs[(i, j)].reversed()
         if cameras is not None:

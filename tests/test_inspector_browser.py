@@ -113,8 +113,8 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
 
     # 1. usable at once: progress while pairs are computed, then the maps
     assert model.status in ("waiting", "running"), "the run finished before the page opened"
-    shown_text(page, re.compile(r"(Finding features|Estimating geometry|Matching pairs|Starting)")).first.wait_for(
-        timeout=30_000)
+    held = re.compile(r"(Finding features|Estimating geometry|Reconstructing the cameras|Matching pairs|Starting)")
+    shown_text(page, held).first.wait_for(timeout=30_000)
     page.screenshot(path=str(shots / "0_progress.png"))
     app.release()
     shown_text(page, re.compile(r"^Ready: \d+ pairs")).wait_for(timeout=300_000)

@@ -216,3 +216,22 @@ def test_line_uncertainty_is_the_spread_of_lines_of_poses_drawn_from_the_covaria
         d2 += d * d
     want = np.percentile(np.sqrt(d2 / 32), 90)
     assert line_uncertainty(K, K, R, t, cov, x, y, samples=32, seed=7) == pytest.approx(want, rel=1e-9)
+
+
+def test_the_mapping_runs_in_worker_processes_give_the_cameras_made_here(recon_run):
+    """The two mapping runs go to the worker pool side by side; their models come back as COLMAP's
+    binary files, so the cameras, points and uncertainties are the ones a run here makes, bit for bit."""
+    from pipeline.cache import PairCache
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+    ps, res = recon_run
+    pooled = detect_set(ps, get_preset("default").replace(max_side=320), PairCache(None), workers=2,
+                        only_refs=[]).cameras
+    for f in dataclasses.fields(pooled):
+        if f.name == "seconds":
+            continue
+        a, b = getattr(res.cameras, f.name), getattr(pooled, f.name)
+        if isinstance(a, np.ndarray):
+            assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), f.name
+        else:
+            assert a == b, f.name
