@@ -1,8 +1,8 @@
 """On-disk cache of per-pair results, keyed by image content and parameters.
 
-Entries are arrays in one zstd frame (an npz before) behind a small header (magic, format version, payload length, SHA-256),
-written atomically (temporary file + rename), so an interrupted run never leaves a half-written
-entry in place. On read the header is checked: a truncated, corrupt or foreign entry (a crash, a
+Entries are arrays in one zstd frame (an npz before) behind a small header (magic, format
+version, payload length, SHA-256), written atomically (temporary file + rename), so an
+interrupted run never leaves a half-written entry in place. On read the header is checked: a truncated, corrupt or foreign entry (a crash, a
 full disk, another version) is reported as a warning, deleted and recomputed, never a traceback.
 Reads refresh an entry's time, and a size cap evicts the least recently used entries. Maps are
 stored as float16 and every result, fresh or cached, goes through the same quantisation, so a
