@@ -671,9 +671,9 @@ def set_cameras(photo_set: PhotoSet, params: Params, pairs: dict, keypoints: lis
         def got(res):
             out[res[0]] = res[1]
             progress("cameras", len(out), len(tasks))
-        runner.map(_task_map, [(k, *t) for k, t in enumerate(tasks)], got,
+        runner.map(_task_map, [(n, *t) for n, t in enumerate(tasks)], got,
                    label=lambda a: f"the reconstruction of {photo_set.root}")
-        return [out[k] for k in range(len(tasks))]
+        return [out[n] for n in range(len(tasks))]
     cams = reconstruct(keypoints, [p.size for p in photos], pairs, [p.rgb for p in photos], params.geometry, prior,
                        run_maps=run_maps if runner is not None else None)
     cache.put("cameras", k, cache_mod.to_bytes(cams))
