@@ -160,6 +160,12 @@ def test_entries_are_zstd_framed_and_older_entries_still_read():
         assert (back.ref, back.sup, back.seconds) == (2, 5, 0.25)
         assert np.array_equal(back.cost, cost) and np.array_equal(back.planes, np.ones((7, 4)))
         assert back.cost.flags.writeable and back.planes.flags.writeable
+        # each its own memory: a view would keep the entry's whole buffer alive as long as the
+        # store keeps a pair's small arrays (9 GB on a hundred photos)
+        for a in (back.cost, back.planes):
+            while isinstance(a.base, np.ndarray):
+                a = a.base
+            assert a.base is None or memoryview(a.base).nbytes == a.nbytes
 
 
 def test_every_kind_of_array_survives_the_layout():
