@@ -262,6 +262,7 @@ def triplet_check(pairs: dict[tuple[int, int], PairGeometry], n: int, max_px: fl
     """
     import dataclasses
     ok = lambda a, b: pairs[(a, b)].status == OK
+    two_view = lambda a, b: pairs[(a, b)].source == "two-view"
     votes: dict[tuple[int, int], list[int]] = {}
     memo: dict = {}
     for a in range(n):
@@ -269,6 +270,8 @@ def triplet_check(pairs: dict[tuple[int, int], PairGeometry], n: int, max_px: fl
             for c in range(b + 1, n):
                 if not (ok(a, b) and ok(a, c) and ok(b, c)):
                     continue
+                if not (two_view(a, b) or two_view(a, c) or two_view(b, c)):
+                    continue        # its votes would all go to pairs the cameras fixed, which ignore them
                 closings = [_chained(pairs, a, b, c, memo=memo), _chained(pairs, b, a, c, memo=memo),
                             _chained(pairs, c, a, b, memo=memo)]
                 closings = [x for x in closings if x is not None]
