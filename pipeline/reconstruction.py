@@ -84,10 +84,12 @@ class SetCameras:
         b = self.obs[self.obs[:, 1] == j, 0]
         return np.intersect1d(a, b)
 
-    def view_overlap(self, i: int, j: int, size_j: tuple[int, int]) -> float:
+    def view_overlap(self, i: int, j: int, size_j: tuple[int, int], X: np.ndarray | None = None) -> float:
         """Share of the sparse points photo i sees that fall inside photo j's image (in front of
-        it): how much of i's scene j can speak about (occlusion aside)."""
-        X = self.points[self.obs[self.obs[:, 1] == i, 0]]
+        it): how much of i's scene j can speak about (occlusion aside). X: those points (N, 3),
+        one per observation, when the caller has them already."""
+        if X is None:
+            X = self.points[self.obs[self.obs[:, 1] == i, 0]]
         if len(X) == 0:
             return 0.0
         y = (X - self.C[j]) @ self.R[j].T @ self.K[j].T
@@ -579,23 +581,27 @@ def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[n
     from .support import OK, REJECTED
     out = dict(pairs)
     n = len(cams.registered)
-    order = np.argsort(cams.obs[:, 1], kind="stable")            # each photo's points, found once
+    # each photo's observations (rows of obs, in their order) and points, found once: the loop
+    # below asks for them for every pair of registered photos (4 400 on a hundred photos)
+    order = np.argsort(cams.obs[:, 1], kind="stable")
     bounds = np.searchsorted(cams.obs[order, 1], np.arange(n + 1))
-    seen_by = [np.unique(cams.obs[order[bounds[k]:bounds[k + 1]], 0]) for k in range(n)]
+    rows = [order[bounds[k]:bounds[k + 1]] for k in range(n)]
+    seen_by = [np.unique(cams.obs[r, 0]) for r in rows]
+    observed = [cams.points[cams.obs[r, 0]] for r in rows]                 # one per observation
     for i in range(n):
         for j in range(i + 1, n):
             g = pairs[(i, j)]
             if not (cams.registered[i] and cams.registered[j]) or g.is_homography:
                 continue
             common = np.intersect1d(seen_by[i], seen_by[j], assume_unique=True)     # cams.covisible(i, j)
-            unc = float(np.nanmax([cams.pair_unc[i, j], cams.pair_unc[j, i]])) \
-                if np.isfinite(cams.pair_unc[[i, j], [j, i]]).any() else float("nan")
+            both = (cams.pair_unc[i, j], cams.pair_unc[j, i])
+            unc = float(max(u for u in both if not np.isnan(u))) if np.isfinite(both).any() else float("nan")
             baseline = float(np.linalg.norm(cams.C[i] - cams.C[j]))
             seen = cams.points[common] if len(common) else cams.points[seen_by[i]]
             depth = float(np.median(cams.depth(i, seen))) if len(seen) else float("nan")
             # the share of each photo's scene in view of the other matters only with few common points
-            overlap = min(cams.view_overlap(i, j, sizes[j]), cams.view_overlap(j, i, sizes[i])) \
-                if len(common) < p.recon_min_covisible else 1.0
+            overlap = min(cams.view_overlap(i, j, sizes[j], observed[i]),
+                          cams.view_overlap(j, i, sizes[i], observed[j])) if len(common) < p.recon_min_covisible else 1.0
             why = None
             if len(common) < p.recon_min_covisible and overlap < p.recon_min_overlap:
                 why = (f"the cameras see little of the same scene ({len(common)} common points, {overlap:.0%} of "
@@ -619,8 +625,8 @@ def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[n
                 new = dataclasses.replace(g, status=REJECTED, source="", uncertainty_px=unc, reason=why)
             else:
                 # the matches that the reconstruction confirmed (track observations in both photos)
-                oi = cams.obs[np.isin(cams.obs[:, 0], common) & (cams.obs[:, 1] == i)]
-                oj = cams.obs[np.isin(cams.obs[:, 0], common) & (cams.obs[:, 1] == j)]
+                oi = cams.obs[rows[i][np.isin(cams.obs[rows[i], 0], common)]]
+                oj = cams.obs[rows[j][np.isin(cams.obs[rows[j], 0], common)]]
                 oi, oj = oi[np.argsort(oi[:, 0], kind="stable")], oj[np.argsort(oj[:, 0], kind="stable")]
                 _, fi = np.unique(oi[:, 0], return_index=True)
                 _, fj = np.unique(oj[:, 0], return_index=True)

@@ -773,8 +773,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 if (i, j) not in kept:
                     pairs[(i, j)] = not_compared(i, j, screen.reason(i, j, gp.screen_features))
             timings["screen_pairs"] = len(compared)
-        gkey = {(i, j): cache_mod.key("geometry", photos[i].key, photos[j].key, params.geometry_key_material())
-                for i, j in compared}
+        material = params.geometry_key_material()
+        gkey = {(i, j): cache_mod.key("geometry", photos[i].key, photos[j].key, material) for i, j in compared}
         todo = []
         for ij, k in gkey.items():
             g = cache.load("geometry", k, lambda d: cache_mod.from_bytes(PairGeometry, d))

@@ -352,14 +352,17 @@ def cap_supports(supports: list[list[int]], pairs: dict, k: int, centres: np.nda
                     d[j] = v / np.linalg.norm(v)
         chosen: list[int] = []
         left = list(sup)
+        nearest = {j: np.inf for j in d}      # each one's smallest angle to those chosen, kept up to date
         while left and len(chosen) < k:
             def score(j):
-                div = 0.0
-                if j in d and any(c in d for c in chosen):
-                    div = 2.0 * min(np.arccos(np.clip(d[j] @ d[c], -1, 1)) for c in chosen if c in d)
+                div = 2.0 * nearest[j] if j in d and np.isfinite(nearest[j]) else 0.0
                 return (q[j] + div, -j)
             best = max(left, key=score)
             chosen.append(best)
             left.remove(best)
+            if best in d:
+                for j in left:
+                    if j in d:
+                        nearest[j] = min(nearest[j], np.arccos(np.clip(d[j] @ d[best], -1, 1)))
         out.append(sorted(chosen))
     return out
