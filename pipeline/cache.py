@@ -28,7 +28,7 @@ import zstandard
 from .jit import LazyKernel
 from .params import digest
 
-CODE_VERSION = "12"      # bump when a change alters per-pair results
+CODE_VERSION = "13"      # bump when a change alters per-pair results
 
 
 def default_cache_dir() -> Path:

@@ -189,7 +189,84 @@ def window_descriptors(sf: StripFeatures, start: np.ndarray, length: np.ndarray,
                        hog_floor: float = 0.0, hist_smooth: bool = False) -> WindowDescriptors:
     """Descriptors of windows; hog_floor is a gradient magnitude per sample spread evenly over the
     orientation bins before normalisation (see DescriptorParams.hog_floor); hist_smooth applies
-    `smooth_hist` to the colour histograms."""
+    `smooth_hist` to the colour histograms.
+
+    One compiled pass per window (window_descriptors_numpy is the definition): numpy gathered the
+    cumulative sums of every window into full-size temporaries (a hundred thousand candidates x 100
+    colour bins, several times over), a fifth of a pair's time. Norms and sums are accumulated in
+    float64, so the values differ from numpy's float32 reductions in their last bits (tested)."""
+    start = np.ascontiguousarray(start, np.int64)
+    length = np.ascontiguousarray(length, np.int64)
+    hog, color, valid = _window_kernel(sf.hog_cum, sf.color_cum, sf.valid_cum, float(sf.rows), start, length,
+                                       int(cells_along), float(hog_floor), bool(hist_smooth),
+                                       int(round(np.sqrt(sf.color_cum.shape[1]))))
+    return WindowDescriptors(hog, color, valid)
+
+
+def _window_numba():
+    import math
+
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def kernel(hog_cum, color_cum, valid_cum, rows, start, length, ca, hog_floor, smooth, b):
+        cr, _, bins = hog_cum.shape
+        nb = color_cum.shape[1]
+        P = len(start)
+        hog = np.empty((P, cr * ca * bins), np.float32)
+        color = np.empty((P, nb), np.float32)
+        valid = np.empty(P, np.float32)
+        bounds = np.empty(ca + 1, np.int64)
+        raw = np.empty(nb, np.float32)
+        floor_per_bin = np.float32(hog_floor / bins)
+        for p in range(P):
+            s0, n = start[p], length[p]
+            for a in range(ca + 1):
+                bounds[a] = s0 + (n * a) // ca
+            ss = 0.0
+            for r in range(cr):
+                for a in range(ca):
+                    extra = np.float32(0.0)
+                    if hog_floor > 0:
+                        extra = floor_per_bin * np.float32((bounds[a + 1] - bounds[a]) * (rows / cr))
+                    o = (r * ca + a) * bins
+                    for k in range(bins):
+                        v = (hog_cum[r, bounds[a + 1], k] - hog_cum[r, bounds[a], k]) + extra
+                        hog[p, o + k] = v
+                        ss += float(v) * float(v)
+            norm = np.float32(math.sqrt(ss)) + np.float32(1e-6)
+            for k in range(cr * ca * bins):
+                hog[p, k] = hog[p, k] / norm
+            e = s0 + n
+            total = 0.0
+            for k in range(nb):
+                v = color_cum[e, k] - color_cum[s0, k]
+                raw[k] = v
+                total += float(v)
+            t = np.float32(max(total, 1e-6))
+            for k in range(nb):
+                raw[k] = raw[k] / t
+            if smooth:                          # smooth_hist: hue neighbours 1/4, 1/2, 1/4, circularly
+                for h in range(b):
+                    lo, hi = ((h - 1) % b) * b, ((h + 1) % b) * b
+                    for k in range(b):
+                        color[p, h * b + k] = np.float32(0.5) * raw[h * b + k] + np.float32(0.25) * (
+                            raw[lo + k] + raw[hi + k])
+            else:
+                for k in range(nb):
+                    color[p, k] = raw[k]
+            valid[p] = np.float32((valid_cum[e] - valid_cum[s0]) / (n * rows))
+        return hog, color, valid
+    return kernel
+
+
+_window_kernel = LazyKernel(_window_numba)
+
+
+def window_descriptors_numpy(sf: StripFeatures, start: np.ndarray, length: np.ndarray, cells_along: int,
+                       hog_floor: float = 0.0, hist_smooth: bool = False) -> WindowDescriptors:
+    """window_descriptors' definition in numpy (the compiled pass's values agree to float32's
+    last bits)."""
     start = start.astype(np.int64)
     length = length.astype(np.int64)
     # Cell boundaries along the window; HOG cells are (cell row) x (cell along).

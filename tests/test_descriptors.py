@@ -109,3 +109,23 @@ def test_achromatic_pixels_share_one_bin_whatever_their_hue():
     assert bins(grey_pink, False) != bins(grey_green, False)
     assert bins(grey_pink, True) == bins(grey_green, True) == bins(dark_red, True) == 0
     assert bins(red, True) == bins(red, False) != 0
+
+
+def test_window_descriptors_compiled_equal_their_numpy_definition():
+    """Every window width, position, the hog floor and the hue smoothing on or off: the compiled
+    pass gives numpy's values to float32's last bits (its norms and sums add in float64)."""
+    from pipeline.descriptors import window_descriptors_numpy
+    sf = _strip_of_image(_textured(7))
+    rng = np.random.default_rng(2)
+    length = rng.integers(6, 60, 400)
+    start = rng.integers(0, 200 - length + 1)
+    start[:3], length[:3] = [0, 0, 200 - 7], [200, 1, 7]                # the whole strip, one sample, the end
+    for floor, smooth in ((0.0, False), (0.05, True), (0.05, False)):
+        a = window_descriptors(sf, start, length, 3, floor, smooth)
+        b = window_descriptors_numpy(sf, start, length, 3, floor, smooth)
+        for name in ("hog", "color", "valid"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert x.dtype == y.dtype == np.float32 and x.shape == y.shape
+            np.testing.assert_allclose(x, y, rtol=2e-6, atol=2e-7, err_msg=name)
+    empty = window_descriptors(sf, np.zeros(0, np.int64), np.zeros(0, np.int64), 3, 0.05, True)
+    assert empty.hog.shape == (0, 81) and empty.color.shape == (0, 100)
