@@ -203,6 +203,14 @@ def window_descriptors(sf: StripFeatures, start: np.ndarray, length: np.ndarray,
     return WindowDescriptors(hog, color, valid)
 
 
+def window_valid(sf: StripFeatures, start: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """(P,) float32 share of in-image samples of windows [start, start + length): WindowDescriptors.valid
+    alone, the same values."""
+    start = np.asarray(start, np.int64)
+    length = np.asarray(length, np.int64)
+    return ((sf.valid_cum[start + length] - sf.valid_cum[start]) / (length * sf.rows)).astype(np.float32)
+
+
 def _window_numba():
     import math
 
