@@ -353,14 +353,19 @@ def _fault_injection(i: int, j: int) -> None:
             time.sleep(1)
 
 
-def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None) -> tuple[tuple[int, int], bytes]:
+def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None
+               ) -> tuple[tuple[int, int], bytes, bytes]:
     """One ordered pair: strips (epipolar pair) or aligned patches (homography pair), and with
-    sweep_args = (cam_i, cam_j, inverse depths) also its cost volume over the depth planes."""
+    sweep_args = (cam_i, cam_j, inverse depths) also its cost volume over the depth planes.
+    Returns (i, j), the result's bytes and its summary's (store.light_of: what the main process keeps
+    of every pair, so that it need not decode the result to make it; the summary's fields are stored
+    exactly, so it equals the decoded result's)."""
     _fault_injection(i, j)
     p = _W["params"]
     rgb_i, rgb_j = _W["rgbs"][i], _W["rgbs"][j]
     if p.geometry.peer_homography:
-        return (i, j), cache_mod.to_bytes(difference(i, j, rgb_i, rgb_j, g.H), float16=("diff",))
+        r = difference(i, j, rgb_i, rgb_j, g.H)
+        return (i, j), cache_mod.to_bytes(r, float16=("diff",)), cache_mod.to_bytes(light_of(r))
     normalised = normalise_to_reference(rgb_i, rgb_j, g.inliers_ref, g.inliers_sup) \
         if p.descriptors.color_normalise else rgb_j
     if g.is_homography:
@@ -387,7 +392,7 @@ def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None)
                                    np.concatenate([g.inliers_sup, g.outliers_sup]), p.geometry.ransac_px * 2.0,
                                    p.geometry.min_inliers)
         r = dataclasses.replace(r, plane_diff=diff)
-    return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS, delta=("sweep.cost",))
+    return (i, j), cache_mod.to_bytes(r, float16=MAP_FIELDS, delta=("sweep.cost",)), cache_mod.to_bytes(light_of(r))
 
 
 class WorkerDied(RuntimeError):
@@ -896,13 +901,17 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
         pdone = [len(ordered) - len(todo)]
         progress("pairs", pdone[0], len(ordered))
 
+        lazy = cache.root is not None and results.keep is not None     # the pairs can be read back later
+
         def got_pair(res):
             _check(cancel)
-            ij, data = res
+            ij, data, light = res
             cache.put("pair", pkey[ij], data)
-            r = load(ij, data)
-            results.put(ij, r, pkey[ij], lambda d, ij=ij: load(ij, d))
-            cache.put("light", pkey[ij], cache_mod.to_bytes(light_of(r)))
+            cache.put("light", pkey[ij], light)
+            if lazy:     # decoded when first read (a map, a viewer), not here: the main process shares the cores
+                results.put_lazy(ij, _decode_light(light), pkey[ij], lambda d, ij=ij: load(ij, d))
+            else:
+                results.put(ij, load(ij, data), pkey[ij], lambda d, ij=ij: load(ij, d))
             if on_pair:
                 on_pair(ij)
             pdone[0] += 1
