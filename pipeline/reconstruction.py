@@ -262,6 +262,9 @@ def _map(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_gu
         opts.random_seed = 0
         opts.mapper.random_seed = 0
         opts.max_runtime_seconds = p.recon_max_seconds
+        # the global bundle adjustments of a large set without its redundant points (those whose
+        # photos are covered well enough by the others): most of its mapping time went there
+        opts.mapper.ba_global_ignore_redundant_points3D = len(keypoints) > p.recon_skip_redundant_above
         pycolmap.set_random_seed(0)
         models = pycolmap.incremental_mapping(db_path, tmp, os.path.join(tmp, "out"), opts)
     if not models:

@@ -235,3 +235,39 @@ def test_the_mapping_runs_in_worker_processes_give_the_cameras_made_here(recon_r
             assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), f.name
         else:
             assert a == b, f.name
+
+
+def test_large_sets_map_without_redundant_points_and_the_cameras_stay_right(recon_run, monkeypatch):
+    """Above `recon_skip_redundant_above` photos the mapper's global bundle adjustments leave out redundant
+    points (the cost of a hundred photos); below it COLMAP's default. Made to apply to this small
+    set, the lighter adjustments still recover the true cameras."""
+    import pycolmap
+
+    from crowdcam.truth import f_precision, load_cameras
+    from pipeline.cache import PairCache
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+    ps, res = recon_run
+    seen = []
+    real = pycolmap.incremental_mapping
+
+    def spy(db, images, out, opts):
+        seen.append(opts.mapper.ba_global_ignore_redundant_points3D)
+        return real(db, images, out, opts)
+    monkeypatch.setattr(pycolmap, "incremental_mapping", spy)
+    params = get_preset("default").replace(max_side=320)
+    assert len(ps.photos) <= params.geometry.recon_skip_redundant_above
+    fast = params.replace(geometry=dataclasses.replace(params.geometry, recon_skip_redundant_above=len(ps.photos) - 1))
+    res_fast = detect_set(ps, fast, PairCache(None), workers=1, only_refs=[])
+    assert seen == [True, True]                                        # both runs
+    seen.clear()
+    detect_set(ps, params, PairCache(None), workers=1, only_refs=[])
+    assert seen == [False, False]                                      # COLMAP's default
+    cams = res_fast.cameras
+    assert cams.n_registered >= 5
+    _, truth = load_cameras(ps.root)
+    for k in np.nonzero(cams.registered)[0]:
+        p = ps.photos[k]
+        assert abs(cams.K[k][0, 0] / (truth[p.stem].K[0, 0] * p.scale) - 1) < 0.03
+    rows = [r for r in f_precision(res_fast)["pairs"]]
+    assert np.mean([r["median_px"] < 2.0 for r in rows]) >= 0.95 and all(r["p90_px"] < 10.0 for r in rows)
