@@ -237,10 +237,11 @@ def test_the_mapping_runs_in_worker_processes_give_the_cameras_made_here(recon_r
             assert a == b, f.name
 
 
-def test_large_sets_map_without_redundant_points_and_the_cameras_stay_right(recon_run, monkeypatch):
-    """Above `recon_skip_redundant_above` photos the mapper's global bundle adjustments leave out redundant
-    points (the cost of a hundred photos); below it COLMAP's default. Made to apply to this small
-    set, the lighter adjustments still recover the true cameras."""
+def test_large_sets_get_lighter_bundle_adjustments_and_the_cameras_stay_right(recon_run, monkeypatch):
+    """Above `recon_light_ba_above` photos the mapper's global bundle adjustments leave out redundant
+    points and the robust refinement stops at Ceres' function tolerance (the cost of a hundred
+    photos); below it COLMAP's settings. Made to apply to this small set, the lighter adjustments
+    still recover the true cameras."""
     import pycolmap
 
     from crowdcam.truth import f_precision, load_cameras
@@ -248,21 +249,29 @@ def test_large_sets_map_without_redundant_points_and_the_cameras_stay_right(reco
     from pipeline.params import get_preset
     from pipeline.run import detect_set
     ps, res = recon_run
-    seen = []
-    real = pycolmap.incremental_mapping
+    seen, tolerances = [], []
+    real, real_adjuster = pycolmap.incremental_mapping, pycolmap.create_default_bundle_adjuster
 
     def spy(db, images, out, opts):
         seen.append(opts.mapper.ba_global_ignore_redundant_points3D)
         return real(db, images, out, opts)
+
+    def spy_adjuster(opts, config, rec):
+        tolerances.append(opts.ceres.solver_options.function_tolerance)
+        return real_adjuster(opts, config, rec)
     monkeypatch.setattr(pycolmap, "incremental_mapping", spy)
+    monkeypatch.setattr(pycolmap, "create_default_bundle_adjuster", spy_adjuster)
     params = get_preset("default").replace(max_side=320)
-    assert len(ps.photos) <= params.geometry.recon_skip_redundant_above
-    fast = params.replace(geometry=dataclasses.replace(params.geometry, recon_skip_redundant_above=len(ps.photos) - 1))
+    assert len(ps.photos) <= params.geometry.recon_light_ba_above
+    fast = params.replace(geometry=dataclasses.replace(params.geometry, recon_light_ba_above=len(ps.photos) - 1))
     res_fast = detect_set(ps, fast, PairCache(None), workers=1, only_refs=[])
     assert seen == [True, True]                                        # both runs
+    assert tolerances and set(tolerances) == {1e-6}
     seen.clear()
+    tolerances.clear()
     detect_set(ps, params, PairCache(None), workers=1, only_refs=[])
     assert seen == [False, False]                                      # COLMAP's default
+    assert tolerances and set(tolerances) == {0.0}
     cams = res_fast.cameras
     assert cams.n_registered >= 5
     _, truth = load_cameras(ps.root)
