@@ -311,6 +311,11 @@ def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
     _W["rgbs"], _W["params"], _W["channels"] = rgbs, params, {}
 
 
+def _init_worker_from_files(folder: str, n: int, params: Params) -> None:
+    """_init_worker with the photos read from `folder` (_Runner writes them there, one .npy each)."""
+    _init_worker([np.load(os.path.join(folder, f"{k}.npy")) for k in range(n)], params)
+
+
 def _channels(i: int):
     ch = _W["channels"]
     if i not in ch:
@@ -417,13 +422,32 @@ class _Runner:
         self.workers = workers
         self.pool = None
         self.args = (rgbs, params)
+        self._folder: str | None = None
 
     def _ensure_pool(self) -> None:
         if self.pool is None:
             for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
                 os.environ.setdefault(var, "1")
             self.pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
-                                            initializer=_init_worker, initargs=self.args)
+                                            initializer=_init_worker_from_files, initargs=self._photo_files())
+
+    def _photo_files(self) -> tuple:
+        """The initializer's arguments with the photos in files (written once per runner, removed
+        with it), not in the arguments themselves: those are written into each new worker's pipe
+        before it starts, and a worker that dies before reading them all (a user's script that
+        calls detect_set unguarded by `if __name__ == "__main__":` dies so, re-run by the spawned
+        worker) left the main process blocked on that write for ever; a few hundred bytes fit the
+        pipe, the pool then sees the worker die and the run ends with an error."""
+        if self._folder is None:
+            import shutil
+            import tempfile
+            import weakref
+            rgbs, _ = self.args
+            self._folder = tempfile.mkdtemp(prefix="crowdcam-photos-")
+            weakref.finalize(self, shutil.rmtree, self._folder, True)
+            for k, rgb in enumerate(rgbs):
+                np.save(os.path.join(self._folder, f"{k}.npy"), rgb)
+        return self._folder, len(self.args[0]), self.args[1]
 
     def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
             label: Callable[[tuple], str] = lambda a: str(a[:2]),
@@ -475,8 +499,11 @@ class _Runner:
                     deaths[k] = deaths.get(k, 0) + 1
                 twice = [k for k in futures.values() if deaths[k] > 1]
                 if twice:
+                    why = "out of memory?" if len(pending) < len(arg_list) else \
+                        ("out of memory? or, from a script, a call outside `if __name__ == \"__main__\":`, "
+                         "which every worker runs again as it starts")
                     raise WorkerDied(f"a worker process died twice while computing {label(pending[twice[0]])} "
-                                     "(out of memory?); the finished pairs are cached, a re-run resumes") from None
+                                     f"({why}); the finished pairs are cached, a re-run resumes") from None
             except BaseException:
                 for fut in futures:
                     fut.cancel()

@@ -102,3 +102,25 @@ def test_a_full_disk_while_writing_outputs(tmp_path, monkeypatch):
                      "--workers", "1", "--quiet", "--cache-dir", str(tmp_path / "cache")])
     assert code == 3
     assert not (tmp_path / "out").exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_a_script_without_a_main_guard_ends_in_an_error_not_a_hang(tmp_path):
+    """A script that calls detect_set at its top level, unguarded by `if __name__ == "__main__":`:
+    every spawned worker runs it again and dies starting. The photos reach the workers in files, so
+    the main process is not left blocked writing them into a dead worker's pipe (it was, for ever):
+    the run ends with WorkerDied, which names the likely cause."""
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "from pathlib import Path\n"
+        "from pipeline.cache import PairCache\n"
+        "from pipeline.loading import load_set\n"
+        "from pipeline.params import get_preset\n"
+        "from pipeline.run import detect_set\n"
+        f"ps = load_set(Path({str(SET)!r}), 160)\n"
+        "detect_set(ps, get_preset('paper').replace(max_side=160), PairCache(None), workers=2)\n")
+    try:
+        p = subprocess.run([sys.executable, str(script)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the unguarded script hung")
+    assert p.returncode != 0
+    assert "WorkerDied" in p.stderr and 'if __name__ == "__main__":' in p.stderr.splitlines()[-1]
