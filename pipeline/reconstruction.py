@@ -262,8 +262,9 @@ def _map(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_gu
         opts.random_seed = 0
         opts.mapper.random_seed = 0
         opts.max_runtime_seconds = p.recon_max_seconds
-        # the global bundle adjustments of a large set without its redundant points (those whose
-        # photos are covered well enough by the others): most of its mapping time went there
+        # a large set's bundle adjustments, lighter (GeometryParams.recon_light_ba_above): the global
+        # ones without redundant points (those whose photos the others cover well enough), and the
+        # robust refinement below to Ceres' own function tolerance; most of its mapping time went there
         large = len(keypoints) > p.recon_light_ba_above
         opts.mapper.ba_global_ignore_redundant_points3D = large
         pycolmap.set_random_seed(0)
