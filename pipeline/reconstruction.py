@@ -764,7 +764,8 @@ def ground_plane(cams: SetCameras, min_share: float = 0.2, max_tilt_deg: float =
         return None
     inl = np.abs(X @ best_n + best_d) < band                 # refit on the inliers (least squares)
     c = X[inl].mean(axis=0)
-    n = np.linalg.svd(X[inl] - c)[2][-1]
+    # the thin SVD: the full one also makes the (N, N) left factor, 1.2 GB for a hundred photos' points
+    n = np.linalg.svd(X[inl] - c, full_matrices=False)[2][-1]
     n = n if n @ up >= 0 else -n
     d = float(-n @ c)
     if np.mean(cams.C[reg] @ n + d > 0) < 0.5:
