@@ -365,8 +365,14 @@ def smooth_volume(volume: np.ndarray, sp: SweepParams, n_fronto: int) -> np.ndar
 
 
 def _volume_numba():
-    """The fused volume (numba): per pixel and plane a partial sort of a handful of supports,
-    which numpy can only do by sorting every (plane, pixel) column."""
+    """The fused volume (numba): per pixel and plane the mean of the smallest few of a handful of
+    supports' costs, which numpy can only get by sorting every (plane, pixel) column.
+
+    Per pixel, the free supports' cost rows (D planes each, contiguous) are inserted one after the
+    other into per-plane sorted columns by compare-exchange (UNSEEN, 255, sorts last), a loop over
+    the planes without branches that the compiler vectorises; then each plane sums its k smallest.
+    The same sums as a selection per plane (the earlier kernel, 3-5x slower), so the same volume
+    bit for bit."""
     import numba
 
     @numba.njit(parallel=True, cache=True, nogil=True)
@@ -375,46 +381,54 @@ def _volume_numba():
         volume = np.full((H, W, D), -1.0, np.float32)
         n_vol = np.zeros((H, W, D), np.uint8)
         for y in numba.prange(H):
-            vals = np.empty(S, np.int32)
+            srt = np.empty((S, D), np.uint8)        # the free supports' costs per plane, ascending
+            carry = np.empty(D, np.uint8)
+            n_free = np.empty(D, np.int32)
+            n_pin = np.empty(D, np.int32)
+            pin_total = np.empty(D, np.int32)
             for x in range(W):
+                n_free[:] = 0
+                n_pin[:] = 0
+                pin_total[:] = 0
+                nf = 0
+                for s_ in range(S):
+                    v = stack[s_, y, x]
+                    if pinned[s_]:                  # a same-spot support always counts where it sees
+                        for d in range(D):
+                            seen = v[d] != UNSEEN
+                            n_pin[d] += seen
+                            pin_total[d] += v[d] if seen else 0
+                        continue
+                    for d in range(D):
+                        carry[d] = v[d]
+                        n_free[d] += v[d] != UNSEEN
+                    for p in range(nf):
+                        row = srt[p]
+                        for d in range(D):
+                            a, b = row[d], carry[d]
+                            row[d] = min(a, b)
+                            carry[d] = max(a, b)
+                    srt[nf, :] = carry
+                    nf += 1
                 # a plane seen by few of the supports that could see the point is no agreement: it
                 # would win by having fewer costs to average (min_seen_share of the most at any plane)
                 n_max = 0
                 for d in range(D):
-                    n = 0
-                    for s_ in range(S):
-                        if stack[s_, y, x, d] != UNSEEN:
-                            n += 1
-                    n_max = max(n_max, n)
+                    n_max = max(n_max, n_free[d] + n_pin[d])
                 n_min = max(1, int(np.ceil(n_max * min_seen_share)))
                 for d in range(D):
-                    n = 0
-                    n_pin = 0
-                    total = 0
-                    for s_ in range(S):
-                        v = stack[s_, y, x, d]
-                        if v != UNSEEN:
-                            if pinned[s_]:
-                                total += v
-                                n_pin += 1
-                            else:
-                                vals[n] = v
-                                n += 1
-                    if n + n_pin < n_min:
+                    n = n_free[d]
+                    if n + n_pin[d] < n_min:
                         continue
                     k = int(np.ceil(n * share))
-                    if k == 0 and n_pin == 0:
+                    if k == 0 and n_pin[d] == 0:
                         k = 1
-                    k = max(k, min(n, min_agree - n_pin))
-                    for a in range(k):              # partial selection sort: the k smallest
-                        m = a
-                        for b in range(a + 1, n):
-                            if vals[b] < vals[m]:
-                                m = b
-                        vals[a], vals[m] = vals[m], vals[a]
-                        total += vals[a]
-                    volume[y, x, d] = total / (k + n_pin) / SCALE
-                    n_vol[y, x, d] = n + n_pin
+                    k = max(k, min(n, min_agree - n_pin[d]))      # k <= n: only seen costs are summed
+                    total = pin_total[d]
+                    for p in range(k):
+                        total += srt[p, d]
+                    volume[y, x, d] = total / (k + n_pin[d]) / SCALE
+                    n_vol[y, x, d] = n + n_pin[d]
         return volume, n_vol
     return kernel
 
