@@ -26,6 +26,7 @@ from .descriptors import image_channels_for
 from .features import Features, detect
 from .loading import InputError, PhotoSet
 from .homography import match_pair_homography
+from .jit import one_thread_per_caller
 from .matching import PairResult, match_pair
 from .params import Params
 from .photometric import normalise_to_reference
@@ -971,7 +972,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     # photos in threads, `workers` at a time: the fusion's and the smoothing's compiled passes, the
     # box filters and the big numpy passes all release the GIL (the pool's workers are idle now)
     todo_maps = [i for i in refs if supports[i]]
-    with ThreadPoolExecutor(max(1, min(workers, len(todo_maps)))) as pool:
+    n_threads = max(1, min(workers, len(todo_maps)))
+    with ThreadPoolExecutor(n_threads, initializer=one_thread_per_caller if n_threads > 1 else None) as pool:
         futs = {pool.submit(photo_map, i): i for i in todo_maps}
         try:
             for k, fut in enumerate(as_completed(futs)):
