@@ -210,6 +210,8 @@ class Params:
                 value = _parse_setting(text, getattr(holder, fname))
             except ValueError as e:
                 raise ValueError(f"setting {item!r}: {e}") from None
+            if name == "sweep.window" and (value < 1 or value % 2 == 0):     # a window centred on its pixel
+                raise ValueError(f"setting {item!r}: the SSIM window must be an odd number of grid pixels, e.g. 7")
             holder = dataclasses.replace(holder, **{fname: value})
             p = dataclasses.replace(p, **{section: holder}) if section else holder
         return p
