@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .jit import LazyKernel
+
 FAR_FACTOR = 1e4     # an epipole farther than this many diagonals is moved to that distance
 
 
@@ -417,16 +419,49 @@ def build_support_segments(F: np.ndarray, st: RefStrips, ref_size: tuple[int, in
 
 
 def support_sample_points(sg: SupportSegments) -> tuple[np.ndarray, np.ndarray]:
-    """Sample grid of all support segments: xy (rows, N, 2) float64 and segment id (N,) per along index."""
-    seg = np.repeat(np.arange(len(sg.strip)), sg.length)
-    s = sg.s0[seg] + sg.step[seg] * (np.arange(len(seg)) - sg.offset[seg])
-    base = sg.foot[seg] + s[:, None] * sg.d[seg]                              # (N, 2)
-    L = sg.row_lines[seg]                                                     # (N, rows, 3)
-    num = L[..., 0] * base[:, None, 0] + L[..., 1] * base[:, None, 1] + L[..., 2]
-    den = L[..., 0] * sg.n[seg][:, None, 0] + L[..., 1] * sg.n[seg][:, None, 1]
-    u = -num / np.where(np.abs(den) < 1e-12, 1e-12, den)                       # (N, rows)
-    xy = base[None] + u.T[..., None] * sg.n[seg][None]
-    return xy, seg
+    """Sample grid of all support segments: xy (rows, N, 2) float64 and segment id (N,) per along index.
+
+    Sample i of segment g lies on the central line at s = s0 + step (i - offset), and row r where
+    the normal through it meets row line r. One compiled pass (numba), the same arithmetic as
+    numpy's in the same order, so the same bits (tests/test_patches.py): numpy's gathers of every
+    sample's row lines made (N, rows, 3) temporaries, 13 ms a pair against 0.6 ms."""
+    return _sample_kernel(sg.s0.astype(np.float64), sg.step.astype(np.float64), sg.offset.astype(np.int64),
+                          sg.length.astype(np.int64), np.ascontiguousarray(sg.foot, np.float64),
+                          np.ascontiguousarray(sg.d, np.float64), np.ascontiguousarray(sg.n, np.float64),
+                          np.ascontiguousarray(sg.row_lines, np.float64))
+
+
+def _sample_numba():
+    import numba
+
+    @numba.njit(cache=True, nogil=True)          # no fastmath: the same bits as numpy's
+    def kernel(s0, step, offset, length, foot, d, n, row_lines):
+        N = 0
+        for g in range(len(length)):
+            N += length[g]
+        rows = row_lines.shape[1]
+        xy = np.empty((rows, N, 2))
+        seg = np.empty(N, np.int64)
+        i = 0
+        for g in range(len(length)):
+            for _ in range(length[g]):
+                seg[i] = g
+                s = s0[g] + step[g] * (i - offset[g])
+                bx = foot[g, 0] + s * d[g, 0]
+                by = foot[g, 1] + s * d[g, 1]
+                for r in range(rows):
+                    l0, l1, l2 = row_lines[g, r, 0], row_lines[g, r, 1], row_lines[g, r, 2]
+                    num = l0 * bx + l1 * by + l2
+                    den = l0 * n[g, 0] + l1 * n[g, 1]
+                    u = -num / (1e-12 if abs(den) < 1e-12 else den)
+                    xy[r, i, 0] = bx + u * n[g, 0]
+                    xy[r, i, 1] = by + u * n[g, 1]
+                i += 1
+        return xy, seg
+    return kernel
+
+
+_sample_kernel = LazyKernel(_sample_numba)
 
 
 def support_quads(sg: SupportSegments, seg: np.ndarray, start: np.ndarray, length: np.ndarray) -> np.ndarray:

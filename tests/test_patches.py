@@ -110,3 +110,28 @@ def test_traversal_direction_matches_on_a_visible_plane():
                     agree.append((b - a) @ sg.along_dir[g] > 0)
         assert len(agree) > 30
         assert np.mean(agree) > 0.97
+
+
+@pytest.mark.parametrize("baseline", ["sideways", "forward"])
+def test_the_compiled_support_samples_equal_their_numpy_definition(baseline):
+    """support_sample_points (compiled) gives numpy's samples bit for bit: sample i of segment g on
+    the central line at s0 + step (i - offset), row r where the normal through it meets row line r
+    (forward: the epipole is in view and strips split into two segments)."""
+    from pipeline.patches import support_sample_points
+    ref = look_at([0, -8, 1.6], [0, 0, 1.0], 500.0, (480, 640), 0.03)
+    C_sup = [3, -7.5, 2.2] if baseline == "sideways" else [0.3, -5.0, 1.7]
+    sup = look_at(C_sup, [0.5, 0, 1.0], 560.0, (480, 640), -0.05)
+    F = fundamental_from_cameras(ref.P, sup.P)
+    st = build_ref_strips(epipoles(F)[0], (480, 640), 24, 3, 9, 3)
+    sg = build_support_segments(F, st, (480, 640), (480, 640))
+    seg = np.repeat(np.arange(len(sg.strip)), sg.length)
+    s = sg.s0[seg] + sg.step[seg] * (np.arange(len(seg)) - sg.offset[seg])
+    base = sg.foot[seg] + s[:, None] * sg.d[seg]                              # (N, 2)
+    lines = sg.row_lines[seg]                                                 # (N, rows, 3)
+    num = lines[..., 0] * base[:, None, 0] + lines[..., 1] * base[:, None, 1] + lines[..., 2]
+    den = lines[..., 0] * sg.n[seg][:, None, 0] + lines[..., 1] * sg.n[seg][:, None, 1]
+    u = -num / np.where(np.abs(den) < 1e-12, 1e-12, den)                      # (N, rows)
+    want = base[None] + u.T[..., None] * sg.n[seg][None]
+    xy, got_seg = support_sample_points(sg)
+    assert len(seg) > 1000 and xy.shape == want.shape
+    assert np.array_equal(got_seg, seg) and np.array_equal(xy, want)
