@@ -964,13 +964,18 @@ class Session:
         except Exception:               # no camera report from the browser yet
             fov, aspect = np.deg2rad(75.0), 1.0
         self._fit_aspect = aspect
-        t = np.tan(fov / 2)
-        img_aspect = float(self.scene_img.render_width)
-        dist = 1.04 * max(0.5 / t, 0.5 * img_aspect / (t * max(aspect, 1e-3)))
+        dist = self.fit_distance(fov, aspect)
         with self.client.atomic():          # position first: it drags look_at along
             cam.position = (0.0, 0.0, -dist)
             cam.look_at = (0.0, 0.0, 0.0)
             cam.up_direction = (0.0, -1.0, 0.0)
+
+    def fit_distance(self, fov: float, aspect: float) -> float:
+        """The camera's distance from the picture (height 1, width render_width) at which it fills a
+        viewport of this vertical field of view (radians) and aspect (width / height), with a 4 % margin."""
+        t = np.tan(fov / 2)
+        img_aspect = float(self.scene_img.render_width)
+        return 1.04 * max(0.5 / t, 0.5 * img_aspect / (t * max(aspect, 1e-3)))
 
     def _show_scene(self, img: np.ndarray) -> bool:
         """Put a picture in the main view; True when its shape changed (the camera is refitted)."""
