@@ -128,6 +128,8 @@ class AggregateParams:
     plane_neutral: float = 34.5        # the median Lab difference that is no evidence (tau ln 10: P_peer 0.9)
     plane_dynamic_cap: float = 99.0    # the most the cue may count for "moving" (log-odds, before the weight): off
                                        # its plane the scene's parallax reads as change too
+    swept_strips: float = 1.0          # weight of Eq. 3's strip term for a support that is also swept (the depth
+                                       # cue speaks for it); 0: such a support speaks only through the depth cue
 
 
 @dataclass(frozen=True)

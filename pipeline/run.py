@@ -148,8 +148,11 @@ class SetResult:
         logit = np.zeros(self.photo_set.photos[i].size, np.float32)
         count = np.zeros(self.photo_set.photos[i].size, np.float32)
         for j in supports:
-            logit += support_log_odds(self.match_prob(i, j, p), p.aggregate)
-            count += self.pair_results[(i, j)].evidence > 0.05
+            w = p.aggregate.swept_strips if p.sweep.weight > 0 and self.is_swept(i, j) else 1.0
+            if w == 0:
+                continue
+            logit += w * support_log_odds(self.match_prob(i, j, p), p.aggregate)
+            count += w * (self.pair_results[(i, j)].evidence > 0.05)
         if p.aggregate.mean_terms:       # per support: comparable across photos with few and many supports
             logit /= np.maximum(count, 1.0)
         sw = self.sweep_log_odds(i, supports, p) if p.sweep.weight > 0 else None

@@ -420,8 +420,15 @@ def _volume_numba():
 
 
 def _sgm_numba():
-    """Semi-global path costs (numba): each path is a scan along one direction with an O(D) step,
-    a recursion numpy cannot vectorise; the paths of one direction are independent (parallel)."""
+    """Semi-global path costs (numba): each path is a recursion along one direction with an O(D)
+    step, which numpy cannot vectorise. The volume is read in memory order: a horizontal path is a
+    row, scanned by itself (rows in parallel); the other directions advance a whole row at a time,
+    each pixel continuing the path from its predecessor in the previous row (pixels in parallel).
+    Before, every path was walked on its own, a column or a diagonal apart in memory at every step:
+    the same sums in the same order (bit for bit), 30 % slower. The step's neighbours come from a
+    buffer padded with +inf at both ends, with the penalty to a plane of the other family +inf too,
+    so the loop over the planes has no branch. (One function on purpose: a compiled helper closure
+    kept numba from loading the kernel from its disk cache, 8 s of compiling in every process.)"""
     import numba
 
     @numba.njit(parallel=True, cache=True, nogil=True)
@@ -429,42 +436,65 @@ def _sgm_numba():
         H, W, D = cost.shape
         total = np.zeros((H, W, D), np.float32)
         steps = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [-1, -1], [1, -1], [-1, 1]])
+        inf = np.float32(np.inf)
+        # [0, d]: from plane d - 1; [1, d]: from d + 1. float64, as p1 and p2 are: the sums round as before
+        pen = np.full((2, D), p1, np.float64)
+        pen[0, 0] = inf
+        pen[1, D - 1] = inf
+        if 0 < n_fronto < D:                                   # no step across the two families
+            pen[0, n_fronto] = inf
+            pen[1, n_fronto - 1] = inf
+        prev_row = np.full((W, D + 2), inf, np.float32)
+        cur_row = np.full((W, D + 2), inf, np.float32)
         for k in range(n_paths):
             dy, dx = steps[k, 0], steps[k, 1]
-            # a path starts at every pixel whose predecessor lies outside the image
-            starts = np.empty((H * W, 2), np.int64)
-            ns = 0
-            for y in range(H):
-                for x in range(W):
-                    if not (0 <= y - dy < H and 0 <= x - dx < W):
-                        starts[ns, 0] = y
-                        starts[ns, 1] = x
-                        ns += 1
-            for si in numba.prange(ns):
-                y, x = starts[si, 0], starts[si, 1]
-                prev = np.empty(D, np.float32)
-                cur = np.empty(D, np.float32)
+            if dy == 0:
+                for y in numba.prange(H):
+                    a = np.full(D + 2, inf, np.float32)
+                    b = np.full(D + 2, inf, np.float32)
+                    x = 0 if dx > 0 else W - 1
+                    for d in range(D):
+                        a[d + 1] = cost[y, x, d]
+                        total[y, x, d] += a[d + 1]
+                    for _ in range(W - 1):
+                        x += dx
+                        low = a[1]
+                        for d in range(2, D + 1):
+                            low = min(low, a[d])
+                        c, t = cost[y, x], total[y, x]
+                        for d in range(D):                     # the step, as below
+                            best = min(min(a[d + 1], low + p2), min(a[d] + pen[0, d], a[d + 2] + pen[1, d]))
+                            v = np.float32(c[d] + best - low)        # rounded as stored, then summed
+                            b[d + 1] = v
+                            t[d] += v
+                        a, b = b, a
+                continue
+            y = 0 if dy > 0 else H - 1
+            for x in numba.prange(W):
                 for d in range(D):
-                    prev[d] = cost[y, x, d]
-                    total[y, x, d] += prev[d]
+                    prev_row[x, d + 1] = cost[y, x, d]
+                    total[y, x, d] += prev_row[x, d + 1]
+            for _ in range(H - 1):
                 y += dy
-                x += dx
-                while 0 <= y < H and 0 <= x < W:
-                    low = prev[0]
-                    for d in range(1, D):
-                        low = min(low, prev[d])
-                    for d in range(D):
-                        best = min(prev[d], low + p2)
-                        if d > 0 and d != n_fronto:                 # the next plane of the same family
-                            best = min(best, prev[d - 1] + p1)
-                        if d + 1 < D and d + 1 != n_fronto:
-                            best = min(best, prev[d + 1] + p1)
-                        cur[d] = cost[y, x, d] + best - low
-                    for d in range(D):
-                        prev[d] = cur[d]
-                        total[y, x, d] += cur[d]
-                    y += dy
-                    x += dx
+                for x in numba.prange(W):
+                    xp = x - dx
+                    if 0 <= xp < W:
+                        prev = prev_row[xp]
+                        low = prev[1]
+                        for d in range(2, D + 1):
+                            low = min(low, prev[d])
+                        c, t, out = cost[y, x], total[y, x], cur_row[x]
+                        for d in range(D):
+                            # stay, or jump (p2), or step to the next plane of the same family (p1)
+                            best = min(min(prev[d + 1], low + p2), min(prev[d] + pen[0, d], prev[d + 2] + pen[1, d]))
+                            v = np.float32(c[d] + best - low)        # rounded as stored, then summed
+                            out[d + 1] = v
+                            t[d] += v
+                    else:                                      # a path starts here
+                        for d in range(D):
+                            cur_row[x, d + 1] = cost[y, x, d]
+                            total[y, x, d] += cur_row[x, d + 1]
+                prev_row, cur_row = cur_row, prev_row
         return total
     return kernel
 

@@ -87,3 +87,24 @@ def test_default_pairs_carry_the_plane_difference_and_the_map_adds_it_last():
     pres = detect_set(ps, paper, PairCache(None), workers=1)
     assert pres.pair_results and all(r.plane_diff is None for r in pres.pair_results.values())
     assert all(pres.plane_log_odds(k, s) is None for k, s in enumerate(pres.supports) if s)
+
+
+def test_swept_supports_can_speak_through_the_depth_cue_alone():
+    """aggregate.swept_strips = 0 leaves Eq. 3's strip term out for the supports that are swept: a
+    photo whose supports are all swept then has the depth cue's log-odds alone; at 1 (default) the
+    strips count too."""
+    import dataclasses
+
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+
+    params = get_preset("default").replace(max_side=240)           # (at 160 no pair is swept)
+    ps = load_set(SAMPLE_SETS / "street_sideways", params.max_side)
+    res = detect_set(ps, params, PairCache(None), workers=1)
+    i = next(k for k, s in enumerate(res.supports) if s and all(res.is_swept(k, j) for j in s))
+    off = params.replace(aggregate=dataclasses.replace(params.aggregate, swept_strips=0.0))
+    depth_only = params.sweep.weight * res.sweep_log_odds(i, res.supports[i], off)
+    np.testing.assert_allclose(res.static_log_odds(i, res.supports[i], off), depth_only, atol=1e-6)
+    assert np.abs(res.static_log_odds(i, res.supports[i]) - depth_only).max() > 0.1

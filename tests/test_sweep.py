@@ -276,6 +276,42 @@ def test_smoothing_keeps_a_consistent_depth_and_denies_scattered_look_alikes():
     assert np.median(smooth.cost[mover]) > 0.2                           # one smooth depth does not
 
 
+def _sgm_reference(cost, n_fronto, p1, p2, n_paths):
+    """Hirschmueller's path recursion written out plainly, path by path and pixel by pixel:
+    L(p, d) = C(p, d) + min(L(p-r, d), L(p-r, d+-1) + P1, min_k L(p-r, k) + P2) - min_k L(p-r, k),
+    with no P1 step between the two families of planes (parallel to the image: d < n_fronto)."""
+    H, W, D = cost.shape
+    total = np.zeros_like(cost, dtype=np.float64)
+    for dy, dx in [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1)][:n_paths]:
+        L = np.zeros_like(total)
+        ys = range(H) if dy >= 0 else range(H - 1, -1, -1)
+        xs = list(range(W)) if dx >= 0 else list(range(W - 1, -1, -1))
+        for y in ys:
+            for x in xs:
+                py, px = y - dy, x - dx
+                if not (0 <= py < H and 0 <= px < W):
+                    L[y, x] = cost[y, x]
+                    continue
+                prev, low = L[py, px], L[py, px].min()
+                for d in range(D):
+                    best = min(prev[d], low + p2)
+                    if d > 0 and d != n_fronto:
+                        best = min(best, prev[d - 1] + p1)
+                    if d + 1 < D and d + 1 != n_fronto:
+                        best = min(best, prev[d + 1] + p1)
+                    L[y, x, d] = cost[y, x, d] + best - low
+        total += L
+    return total
+
+
+@pytest.mark.parametrize("n_paths", [4, 8])
+def test_the_compiled_smoothing_is_hirschmuellers_recursion_along_every_path(n_paths):
+    cost = np.random.default_rng(3).random((9, 11, 7)).astype(np.float32)
+    total = SW._sgm_kernel(cost, 4, 0.3, 2.0, n_paths)
+    np.testing.assert_allclose(total, _sgm_reference(cost.astype(np.float64), 4, 0.3, 2.0, n_paths), atol=1e-5)
+    assert not np.allclose(total, _sgm_reference(cost.astype(np.float64), 0, 0.3, 2.0, n_paths), atol=1e-3)
+
+
 def test_depth_span_is_zero_from_one_spot_and_grows_with_the_baseline():
     ang = np.deg2rad(10)
     R = np.array([[np.cos(ang), 0, np.sin(ang)], [0, 1, 0], [-np.sin(ang), 0, np.cos(ang)]])
