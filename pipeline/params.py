@@ -111,6 +111,7 @@ class AggregateParams:
     """Matching map and aggregation (§3.1.3 Eq. 2, §3.2 Eq. 3)."""
 
     sigma_frac: float = 1 / 3          # paper: sigma = max distance to the patch centre / 3
+    splat_step: int = 1                # paper: Eq. 2 at every pixel; 2: on a grid twice as coarse, resized (speed)
     remap: tuple[float, float] = (0.3, 0.7)  # paper: remap P(x|I_s) to (0.3, 0.7) before the product
     no_evidence: str = "no_match"      # paper: a patch with no candidate counts as unmatched
     threshold: float = 0.5             # ours: default threshold for the written masks
@@ -214,6 +215,8 @@ class Params:
                 raise ValueError(f"setting {item!r}: {e}") from None
             if name == "sweep.window" and (value < 1 or value % 2 == 0):     # a window centred on its pixel
                 raise ValueError(f"setting {item!r}: the SSIM window must be an odd number of grid pixels, e.g. 7")
+            if name == "aggregate.splat_step" and not 1 <= value <= 4:         # the patches' Gaussian spans ~8 px
+                raise ValueError(f"setting {item!r}: the splat's grid step must be 1 (every pixel) to 4")
             holder = dataclasses.replace(holder, **{fname: value})
             p = dataclasses.replace(p, **{section: holder}) if section else holder
         return p
@@ -297,7 +300,7 @@ PRESETS: dict[str, Params] = {
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
                                   calib_scale=1.544, calib_offset=-0.65,
-                                  plane_weight=0.6, plane_dynamic_cap=0.5),
+                                  plane_weight=0.6, plane_dynamic_cap=0.5, splat_step=2),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_px=8.0,
                           smooth_p2=4.0, two_supports_agree=True),
     ),

@@ -25,6 +25,7 @@ def test_settings_are_read_as_their_fields_types():
     ("sweep.lab_weights=1,2", "expected 3 comma-separated values"),
     ("sweep.blur=nan", "NaN is not a setting"),
     ("sweep.window=8", "must be an odd number"),
+    ("aggregate.splat_step=0", "grid step must be 1"),
 ])
 def test_a_bad_setting_is_one_line_naming_it(setting, expect):
     with pytest.raises(ValueError) as e:
