@@ -39,16 +39,22 @@ def test_eq1_is_the_best_similarity_over_the_strips_candidates():
         assert best_c[p] == c0 + sc.argmax() and conf_c[p] == pytest.approx(sc.max(), abs=1e-6)
 
 
-@pytest.mark.parametrize("epipole", [(70.0, 40.0), (-400.0, 90.0)])   # inside (a full circle), outside
-def test_splat_is_eq2_over_the_covering_patches(epipole):
-    size, L = (90, 120), 12
+def _random_table(epipole, size, L, seed):
+    """Strips around an epipole and a patch table with independent random confidences: (strips,
+    table, Eq. 2's sigma for patches of length L)."""
     st = build_ref_strips(np.array([*epipole, 1.0]), size, L, 3, 9, 3)
     P = int(st.n_win.sum())
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(seed)
     table = PatchTable(np.zeros(P, np.int64), np.zeros(P, np.int64), rng.random(P) > 0.1, rng.random(P) > 0.3,
                        rng.random(P).astype(np.float32), rng.random(P).astype(np.float32),
                        *(np.zeros(P, np.int64),) * 6)
-    sigma = np.hypot(L / 2, L / 2) / 3
+    return st, table, np.hypot(L / 2, L / 2) / 3
+
+
+@pytest.mark.parametrize("epipole", [(70.0, 40.0), (-400.0, 90.0)])   # inside (a full circle), outside
+def test_splat_is_eq2_over_the_covering_patches(epipole):
+    size = (90, 120)
+    st, table, sigma = _random_table(epipole, size, 12, 1)
     hog_map, color_map, evidence = splat(st, table, size, sigma)
     # the definition, pixel by pixel over iter_covering's nine (fan, offset) passes
     n = size[0] * size[1]
@@ -72,16 +78,10 @@ def test_splat_is_eq2_over_the_covering_patches(epipole):
 @pytest.mark.parametrize("epipole", [(150.0, 100.0), (-900.0, 200.0)])
 def test_splat_on_a_coarser_grid_is_close_to_every_pixel(epipole):
     """aggregate.splat_step = 2: the weighted sums on a grid twice as coarse, resized before the
-    division, give the full-size maps within a few thousandths (the patches' Gaussians are wide),
+    division, give the full-size maps within about a hundredth (the patches' Gaussians are wide),
     the same pixels without a candidate, and a quarter of the kernel's work."""
-    size, L = (241, 320), 24                                # an odd height: the grid does not divide it
-    st = build_ref_strips(np.array([*epipole, 1.0]), size, L, 3, 9, 3)
-    P = int(st.n_win.sum())
-    rng = np.random.default_rng(2)
-    table = PatchTable(np.zeros(P, np.int64), np.zeros(P, np.int64), rng.random(P) > 0.1, rng.random(P) > 0.3,
-                       rng.random(P).astype(np.float32), rng.random(P).astype(np.float32),
-                       *(np.zeros(P, np.int64),) * 6)
-    sigma = np.hypot(L / 2, L / 2) / 3
+    size = (241, 320)                                       # an odd height: the grid does not divide it
+    st, table, sigma = _random_table(epipole, size, 24, 2)
     fine, coarse = splat(st, table, size, sigma), splat(st, table, size, sigma, 2)
     for a, b in zip(fine, coarse):
         assert b.shape == size and b.dtype == np.float32
