@@ -78,6 +78,7 @@ class PatchParams:
     patch_frac: float = 0.0375         # ours: patch length / working max side (24 px at 640)
     rows: int = 9                      # ours: samples across a strip (3 per HOG cell row)
     n_fans: int = 3                    # paper: fans shifted by 0, 1/3, 2/3 of the angular step
+    swept_fans: int = 0                # ours: fans of a pair that is also swept (its depth cue speaks for it; 0: n_fans)
     along_overlap: int = 3             # paper: patches overlap by 2/3 along the strip -> 3 per pixel
     candidate_scales: tuple[float, ...] = (2 / 3, 1.0, 3 / 2)   # paper: three widths (values ours)
     candidate_step_frac: float = 1 / 6  # ours: candidate start positions every patch_length/6
@@ -296,7 +297,7 @@ PRESETS: dict[str, Params] = {
         preset="default",
         geometry=GeometryParams(homography_pairs=True, triplet_check=True, reconstruction=True,
                                 two_view_max_uncertainty_frac=0.025),
-        patches=PatchParams(homography_reach_frac=0.1),
+        patches=PatchParams(homography_reach_frac=0.1, swept_fans=1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
                                   calib_scale=1.544, calib_offset=-0.65,

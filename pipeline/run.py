@@ -381,7 +381,10 @@ def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None
         r = match_pair_homography(i, j, rgb_i, rgb_j, g.H, p, g.inliers_ref)
     else:
         ch_sup = image_channels_for(normalised, p.descriptors) if p.descriptors.color_normalise else _channels(j)
-        r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, p)
+        pm = p
+        if sweep_args is not None and p.patches.swept_fans > 0:     # fewer fans where the depth cue speaks too
+            pm = p.replace(patches=dataclasses.replace(p.patches, n_fans=p.patches.swept_fans))
+        r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, pm)
     if sweep_args is not None:
         r = dataclasses.replace(r, sweep=sweep_pair(i, j, rgb_i, normalised, *sweep_args, p.sweep))
     elif g.is_homography and p.sweep.enabled and p.sweep.direct_homography \

@@ -108,3 +108,20 @@ def test_swept_supports_can_speak_through_the_depth_cue_alone():
     depth_only = params.sweep.weight * res.sweep_log_odds(i, res.supports[i], off)
     np.testing.assert_allclose(res.static_log_odds(i, res.supports[i], off), depth_only, atol=1e-6)
     assert np.abs(res.static_log_odds(i, res.supports[i]) - depth_only).max() > 0.1
+
+
+def test_swept_pairs_search_strips_of_their_own_fans():
+    """patches.swept_fans: the strips of a pair that is also swept come in that many fans, the
+    other pairs' in n_fans (the paper's three); 0 keeps n_fans for all."""
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+
+    params = get_preset("default").replace(max_side=240)           # (at 160 no pair is swept)
+    ps = load_set(SAMPLE_SETS / "street_sideways", params.max_side)
+    res = detect_set(ps, params.with_settings(["patches.swept_fans=1"]), PairCache(None), workers=1)
+    fans = {ij: res.pair_results[ij].strips.n_fans for ij in res.pair_results if res.kind(*ij) == "epipolar"}
+    swept = {ij for ij in fans if res.is_swept(*ij)}
+    assert swept and swept != set(fans)
+    assert all(fans[ij] == (1 if ij in swept else 3) for ij in fans)
