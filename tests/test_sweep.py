@@ -348,3 +348,21 @@ def test_plane_difference_needs_a_homography_of_enough_matches():
     assert H is not None and np.allclose(H, [[1, 0, 3], [0, 1, 3], [0, 0, 1]], atol=1e-3)
     assert diff.shape == a.shape[:2] and np.isnan(diff).any()                 # the shifted border is uncovered
     assert plane_difference(0, 1, a, a, pts[:20], pts[:20] + 3.0, 3.0, 40) == (None, None)
+
+
+@pytest.mark.parametrize("n_supports", [1, 2, 5, 8])
+def test_median_difference_is_nanmedian_over_the_covering_supports(n_supports):
+    from pipeline.peer import median_difference
+    rng = np.random.default_rng(n_supports)
+    diffs = [np.where(rng.random((30, 40)) < 0.3, np.nan, rng.random((30, 40)) * 80).astype(np.float32)
+             for _ in range(n_supports)]
+    diffs[0][:3] = np.nan
+    for d in diffs:
+        d[:2] = np.nan                                    # rows no support covers
+    stack = np.stack(diffs)
+    with np.errstate(all="ignore"), __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("ignore", RuntimeWarning)
+        want = np.nanmedian(stack, axis=0).astype(np.float32)
+    got = median_difference(diffs)
+    assert got.dtype == np.float32 and np.isnan(got[:2]).all()
+    np.testing.assert_array_equal(got, want)
