@@ -567,8 +567,9 @@ HELP = """
 
 **The evidence table**:
 
-- **evidence 42 %**: how much of this point's weight (Eq. 2 averages the nine patches that cover
-  it) comes from patches that had any candidate in the support's view. 100 % = fully seen;
+- **evidence 42 %**: how much of this point's weight (Eq. 2 averages the patches that cover it:
+  nine, from three fans of strips; three where a depth-swept pair searches one fan in `default`)
+  comes from patches that had any candidate in the support's view. 100 % = fully seen;
   0 % = the support does not see this point, and its P(x|I_s) is then the *No evidence* choice
   (0.5, no opinion, in `default`; 0, no match, in `paper`).
 - **HOG / colour**: the similarity of the best candidate (Eq. 1) of the covering patch nearest

@@ -394,8 +394,12 @@ class Tour:
             pair = snap.pair_results[(ref, sup)]
             pic = tv.strips_picture(photos[ref].rgb, photos[sup].rgb, pair, pixel, ev, stems[ref], stems[sup], look)
             if pair.kind == "epipolar" and pair.strips is not None:
-                live = (f"{pair.strips.n_strips} strips in {pair.strips.n_fans} fans (each fan shifted by a third "
-                        f"of a strip: every pixel is covered 9 times); patches {pair.strips.L} px long.")
+                strips = pair.strips
+                covered = strips.n_fans * (strips.L // strips.stride)   # fans x patches along a strip (9 in paper)
+                fans = (f"{strips.n_fans} fans (each shifted by 1/{strips.n_fans} of a strip" if strips.n_fans > 1 else
+                        "1 fan (a pair that is also depth-swept searches one fan in default")
+                live = (f"{strips.n_strips} strips in {fans}: every pixel is covered {covered} times); patches "
+                        f"{strips.L} px long.")
         elif step == 4:
             if ev is None:
                 pic = tv.busy_picture("Finding the candidates of the clicked point…" if pixel is not None

@@ -436,7 +436,8 @@ def strips_picture(ref_rgb: np.ndarray, sup_rgb: np.ndarray, pair, pixel: np.nda
             _line(b, sg.bound_a[g], sup_rgb.shape[:2], t, render.STRIP_RGB, 3)
             _line(b, sg.bound_b[g], sup_rgb.shape[:2], t, render.STRIP_RGB, 3)
     _cross(a, pixel, s, look.t(8), ring=strip_id is None)
-    a, bar = _labelled(a, f"{ref_name} (reference)", f"{len(fan0)} strips in the first of {st.n_fans} fans", look)
+    fans = f"the first of {st.n_fans} fans" if st.n_fans > 1 else "its one fan"
+    a, bar = _labelled(a, f"{ref_name} (reference)", f"{len(fan0)} strips in {fans}", look)
     b, _ = _labelled(b, f"{sup_name} (support)", "the same strips, between corresponding lines", look)
     top = arrange(a, b, one_above(a.shape, b.shape, b.shape, look, _legend_h(look)))
     legend = [(render.LINE_RGB, "line", "strip boundaries (epipolar lines)"),

@@ -154,6 +154,11 @@ def test_tour_walk_keys_and_click(browser, app):
         assert rgb.shape[0] > 200 and rgb.shape[1] > 400 and rgb.std() > 10      # a picture, not a message
         assert np.array_equal(tab.scene_img.image, rgb)                          # and it is what is shown
         pictures[k] = rgb
+        if k == 3:                          # the strips' words count the pair's own fans (one where it is swept)
+            pair = app.models[tab.settings.preset].snapshot().pair_results[(tab.settings.ref, tour.sup)]
+            if pair.kind == "epipolar":
+                covered = pair.strips.n_fans * (pair.strips.L // pair.strips.stride)
+                wait_for(lambda: f"covered {covered} times" in tour.md_live.content, what="the strips' words")
         if k == 2:                          # the photo view from here on: straight at the picture
             cam0, n0 = camera(tab), len(tab.events)
     # steps 2-7 are about a point: one was chosen, explained, and steps 3-7 draw its evidence
