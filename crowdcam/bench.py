@@ -22,7 +22,6 @@ from pathlib import Path
 
 def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q, settings: tuple = ()) -> None:
     try:
-        from crowdcam.memory import limit_arenas_for
         from pipeline.cache import PairCache
         from pipeline.evaluate import score_set, static_false_positive_rate
         from pipeline.loading import load_gts, load_set
@@ -35,7 +34,6 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q,
             cache = PairCache(Path(tmp))
             t0 = time.perf_counter()
             ps = load_set(Path(set_dir), params.max_side)
-            limit_arenas_for(len(ps.photos))          # as `crowdcam detect` runs
             res = detect_set(ps, params, cache, workers=workers)
             cold = time.perf_counter() - t0
             t1 = time.perf_counter()

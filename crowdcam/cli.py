@@ -114,8 +114,6 @@ def cmd_detect(args) -> int:
     params = _params(args)
     set_dir = Path(args.set)
     photo_set = load_set(set_dir, params.max_side, warn=rep.warn, gt_dir=Path(args.gt) if args.gt else None)
-    from crowdcam.memory import limit_arenas_for
-    limit_arenas_for(len(photo_set.photos))
     out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name
     if is_inside(out, set_dir):
         raise CliError(f"{out}: the output folder must not be inside the input folder {set_dir}")

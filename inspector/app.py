@@ -48,7 +48,7 @@ from pipeline.params import PRESETS, get_preset
 
 from . import compose, render
 from . import geometry_view as gv
-from crowdcam.memory import limit_malloc_arenas
+from pipeline.memory import limit_malloc_arenas
 from .picker import Picker, Thumbnails
 from .tour import Tour
 from .gallery_view import GalleryView
@@ -194,7 +194,7 @@ class Inspector:
     def __init__(self, photo_set: PhotoSet, gts: dict[str, np.ndarray], cache: PairCache, out_dir: Path,
                  host: str = "127.0.0.1", port: int = 8080, preset: str = "default", max_side: int = 640,
                  workers: int | None = None, hold: threading.Event | None = None):
-        limit_malloc_arenas()              # memory stays flat as tabs come and go (crowdcam/memory.py)
+        limit_malloc_arenas()              # memory stays flat as tabs come and go (pipeline/memory.py)
         self.photo_set = photo_set
         self.hold = hold                                   # see SetModel.hold (tests only)
         self.stems = [p.stem for p in photo_set.photos]
@@ -501,7 +501,8 @@ class Session:
         self.model_changed(self.app.model(self.settings.preset))
 
     def close(self) -> None:
-        self._closed = True
+        with self._pub:                 # a drawer publishing now finishes first; none publishes after
+            self._closed = True
         self.fast.stop()
         self.slow.stop()
         if self.gallery is not None:
@@ -807,7 +808,7 @@ class Session:
                         + (f" ({cams.reasons[0]})" if cams is not None and cams.reasons else "")
                         + ": every pair uses its own two-view geometry.")
             with self._pub:
-                if self.view == "geometry":
+                if self.view == "geometry" and not self._closed:
                     self.md_geo.content = text
             self._record("geometry", None)
             return

@@ -28,6 +28,7 @@ from .loading import InputError, PhotoSet
 from .homography import match_pair_homography
 from .jit import one_thread_per_caller
 from .matching import PairResult, match_pair
+from .memory import keep_freed_memory
 from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
@@ -312,6 +313,7 @@ def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
     cv2.setNumThreads(1)
     if mp.parent_process() is not None:        # a pool worker: Ctrl-C is the main process's to handle
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        keep_freed_memory()                    # its large arrays reused pair after pair (pipeline/memory.py)
     _W["rgbs"], _W["params"], _W["channels"] = rgbs, params, {}
 
 
