@@ -366,3 +366,18 @@ def test_median_difference_is_nanmedian_over_the_covering_supports(n_supports):
     got = median_difference(diffs)
     assert got.dtype == np.float32 and np.isnan(got[:2]).all()
     np.testing.assert_array_equal(got, want)
+
+
+def test_a_plane_out_of_view_warps_nothing_of_the_support():
+    """planes_in_view may skip a plane only where the warp holds nothing of the support (every
+    bilinear tap outside it); planes on both sides of the line at infinity included."""
+    import cv2
+    rng = np.random.default_rng(0)
+    sup = np.ones((42, 56, 4), np.float32)
+    grid = (48, 64)
+    Hs = np.stack([np.eye(3) + rng.normal(0, [[0.3, 0.3, 30], [0.3, 0.3, 30], [0.004, 0.004, 0.2]])
+                   for _ in range(600)])
+    in_view = SW.planes_in_view(Hs, sup.shape[:2], grid)
+    assert 20 < (~in_view).sum() < 580
+    for H in Hs[~in_view]:
+        assert not SW.warp(sup, H, grid).any()
