@@ -192,15 +192,18 @@ def test_a_planar_pair_is_rescued_only_when_the_setting_says_so(recon_run):
     assert all(kept[ij].source == rescued[ij].source for ij in pairs if ij not in ((i, j), (j, i)))
 
 
-def test_line_uncertainty_is_the_spread_of_lines_of_poses_drawn_from_the_covariance():
-    """line_uncertainty draws all its poses at once; the same as drawing them one at a time."""
+@pytest.mark.parametrize("scale", [1e-5, 1e-30])
+def test_line_uncertainty_is_the_spread_of_lines_of_poses_drawn_from_the_covariance(scale):
+    """line_uncertainty (poses drawn at once, lines in one compiled pass) equals drawing the poses
+    one at a time with numpy and OpenCV's Rodrigues; at 1e-30 the rotations are below the compiled
+    pass's first-order threshold."""
     import cv2
 
     from pipeline.reconstruction import line_uncertainty
     rng = np.random.default_rng(2)
     K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
     A = rng.normal(size=(6, 6))
-    cov = A @ A.T * 1e-5
+    cov = A @ A.T * scale
     R, _ = cv2.Rodrigues(np.array([0.1, -0.2, 0.05]))
     t = np.array([1.0, 0.1, 0.2])
     x, y = rng.uniform(0, 600, (60, 2)), rng.uniform(0, 400, (60, 2))
