@@ -472,9 +472,10 @@ def _extract(rec, ids: list[int], n: int, rgbs, keypoints, prior) -> SetCameras:
     obs = np.array(obs, np.int32).reshape(-1, 3)
     rgb = np.zeros((len(pids), 3), np.uint8)
     if len(obs):                                   # colour of each point in its first observation
-        first = np.unique(obs[:, 0], return_index=True)[1]
-        for a, k, kp in obs[first]:
-            x, y = np.round(keypoints[k][kp]).astype(int)
+        first = obs[np.unique(obs[:, 0], return_index=True)[1]]
+        for k in np.unique(first[:, 1]):           # a photo at a time (a loop over 17 000 points took 0.7 s)
+            a, kp = first[first[:, 1] == k, 0], first[first[:, 1] == k, 2]
+            x, y = np.round(keypoints[k][kp]).astype(int).T
             img = rgbs[k]
             rgb[a] = img[np.clip(y, 0, img.shape[0] - 1), np.clip(x, 0, img.shape[1] - 1)]
     reasons = tuple("" if reg[k] else "not registered by the reconstruction" for k in range(n))
