@@ -35,8 +35,13 @@ def fit_gain_offset(ref_vals: np.ndarray, sup_vals: np.ndarray, iters: int = 3) 
 
 
 def apply_gain_offset(rgb: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(h, w, 3) uint8 -> (h, w, 3) uint8 with a * rgb + b per channel."""
-    return np.clip(rgb.astype(np.float32) * a.astype(np.float32) + b.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
+    """(h, w, 3) uint8 -> (h, w, 3) uint8 with a * rgb + b per channel (float32, rounded, clipped).
+
+    Through a table of the 256 values per channel, the same float32 arithmetic: the same bytes as
+    computing every pixel (tested), 10 -> 0.5 ms at 640 x 480 (once per pair)."""
+    lut = np.clip(np.arange(256, dtype=np.float32)[:, None] * a.astype(np.float32) + b.astype(np.float32) + 0.5,
+                  0, 255).astype(np.uint8)
+    return cv2.LUT(np.ascontiguousarray(rgb, np.uint8), lut.reshape(1, 256, 3))
 
 
 def normalise_to_reference(rgb_ref: np.ndarray, rgb_sup: np.ndarray, pts_ref: np.ndarray,

@@ -258,7 +258,7 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
             continue
         per_plane[d] = _plane_kernel(warp(sup_ones, H, g_ref), rs.lab, rs.mean, rs.var, sp.window, float(sp.ssim_c1),
                                      float(sp.ssim_c2), lum_l, float(sp.color_weight), float(sp.color_tau))
-    cost = np.ascontiguousarray(per_plane.transpose(1, 2, 0))
+    cost = _planes_last_kernel(per_plane)
     return SweepPair(ref, sup, cost, planes, time.perf_counter() - t0)
 
 
@@ -675,6 +675,28 @@ def _plane_numba():
     return kernel
 
 
+def _planes_last_numba():
+    """(D, h, w) uint8 -> (h, w, D) uint8 (numba): numpy's transpose copy of a pair's volume takes
+    12.5 ms at 99 x 240 x 320 (every byte written D apart from the last); here 16 columns at a
+    time, whose D planes stay in the first-level cache, 6.6 ms (8, 32 or 64 columns, or the
+    planes innermost: 7.3-10.6 ms)."""
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def kernel(per_plane):
+        D, H, W = per_plane.shape
+        out = np.empty((H, W, D), np.uint8)
+        for y in range(H):
+            for x0 in range(0, W, 16):
+                x1 = min(x0 + 16, W)
+                for d in range(D):
+                    for x in range(x0, x1):
+                        out[y, x, d] = per_plane[d, y, x]
+        return out
+    return kernel
+
+
 _volume_kernel = LazyKernel(_volume_numba)
+_planes_last_kernel = LazyKernel(_planes_last_numba)
 _sgm_kernel = LazyKernel(_sgm_numba)
 _plane_kernel = LazyKernel(_plane_numba)

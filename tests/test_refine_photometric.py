@@ -47,3 +47,14 @@ def test_aligned_normalisation_maps_support_colours_to_the_reference():
     sup = apply_gain_offset(ref, np.array([0.8, 1.1, 0.95]), np.array([10.0, -5.0, 3.0]))
     out = normalise_aligned(ref, sup, np.ones((40, 60), np.uint8), step=1)
     assert np.abs(out.astype(int) - ref.astype(int)).mean() < 1.5
+
+
+def test_gain_and_offset_by_table_equal_the_per_pixel_arithmetic():
+    """apply_gain_offset's 256-value tables give the bytes of a * rgb + b computed per pixel in
+    float32, rounded and clipped (gains and offsets as fit_gain_offset clips them)."""
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    for _ in range(50):
+        a, b = rng.uniform(0.5, 2.0, 3), rng.uniform(-64, 64, 3)
+        want = np.clip(rgb.astype(np.float32) * a.astype(np.float32) + b.astype(np.float32) + 0.5, 0, 255)
+        assert np.array_equal(apply_gain_offset(rgb, a, b), want.astype(np.uint8))

@@ -381,3 +381,11 @@ def test_a_plane_out_of_view_warps_nothing_of_the_support():
     assert 20 < (~in_view).sum() < 580
     for H in Hs[~in_view]:
         assert not SW.warp(sup, H, grid).any()
+
+
+@pytest.mark.parametrize("shape", [(99, 24, 37), (1, 8, 9), (5, 33, 16)])
+def test_the_compiled_planes_last_copy_is_numpys_transpose(shape):
+    """sweep_pair's volume from its planes: the compiled copy equals numpy's transposed copy."""
+    per_plane = np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8)
+    got = SW._planes_last_kernel(per_plane)
+    assert got.flags.c_contiguous and np.array_equal(got, per_plane.transpose(1, 2, 0))
