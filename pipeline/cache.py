@@ -141,11 +141,6 @@ def _packed_chunks(meta: dict, arrays: dict[str, np.ndarray]) -> tuple[int, list
     return start + offset, chunks
 
 
-def _pack_arrays(meta: dict, arrays: dict[str, np.ndarray]) -> bytes:
-    """_packed_chunks as one bytes object."""
-    return b"".join(_packed_chunks(meta, arrays)[1])
-
-
 def _unpack_arrays(data) -> tuple[dict, dict[str, np.ndarray]]:
     """(meta, arrays) of an entry's payload: this format, or an npz (zstd-framed or, older, plain
     deflated) as written before, which still reads. The arrays are writable and own their memory."""

@@ -474,7 +474,7 @@ def _extract(rec, ids: list[int], n: int, rgbs, keypoints, prior) -> SetCameras:
     if len(obs):                                   # colour of each point in its first observation
         first = obs[np.unique(obs[:, 0], return_index=True)[1]]
         for k in np.unique(first[:, 1]):           # a photo at a time (a loop over 17 000 points took 0.7 s)
-            a, kp = first[first[:, 1] == k, 0], first[first[:, 1] == k, 2]
+            a, kp = first[first[:, 1] == k][:, [0, 2]].T
             x, y = np.round(keypoints[k][kp]).astype(int).T
             img = rgbs[k]
             rgb[a] = img[np.clip(y, 0, img.shape[0] - 1), np.clip(x, 0, img.shape[1] - 1)]
@@ -546,7 +546,7 @@ def line_uncertainty(Ki, Kj, R_rel, t_rel, cov6, x_i: np.ndarray, y_j: np.ndarra
     poses drawn from the covariance is the lines' spread where it matters: all over the image, not
     only at the matches. The poses are drawn all at once (the same draws as one at a time); their
     lines and distances come from one compiled pass (`_line_rms_numba`): the same figures as
-    numpy's to float rounding, 1.1 -> 0.1 ms a call at 300 points (numpy's forty-odd small steps
+    numpy's to float rounding, 1.1 -> 0.23 ms a call at 300 points (numpy's forty-odd small steps
     on (32, N, 3) temporaries were most of it; the checks of a hundred photos ask 3,800 times).
     """
     try:

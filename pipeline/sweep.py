@@ -206,7 +206,11 @@ def planes_in_view(Hs: np.ndarray, sup_size: tuple[int, int], grid: tuple[int, i
     and the box's own warp, offset and copy cost twice as much.)"""
     h, w = sup_size
     corners = np.array([[-1.0, -1.0, 1.0], [w, -1.0, 1.0], [w, h, 1.0], [-1.0, h, 1.0]])
-    q = np.einsum("dij,cj->dci", np.linalg.inv(Hs), corners)          # (D, 4, 3)
+    try:
+        H_inv = np.linalg.inv(Hs)
+    except np.linalg.LinAlgError:          # a plane through the support's centre: warp them all
+        return np.ones(len(Hs), bool)
+    q = np.einsum("dij,cj->dci", H_inv, corners)                       # (D, 4, 3)
     bounded = np.all(q[..., 2] > 1e-12, axis=1) | np.all(q[..., 2] < -1e-12, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         xy = q[..., :2] / q[..., 2:]

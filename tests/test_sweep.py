@@ -371,7 +371,6 @@ def test_median_difference_is_nanmedian_over_the_covering_supports(n_supports):
 def test_a_plane_out_of_view_warps_nothing_of_the_support():
     """planes_in_view may skip a plane only where the warp holds nothing of the support (every
     bilinear tap outside it); planes on both sides of the line at infinity included."""
-    import cv2
     rng = np.random.default_rng(0)
     sup = np.ones((42, 56, 4), np.float32)
     grid = (48, 64)
