@@ -36,6 +36,35 @@ def test_shared_features_are_symmetric_and_find_the_neighbours():
         assert s[i, (i + 6) % 12] <= 2                                      # the far side shares nothing
 
 
+def _counts_by_definition(feats, n_features, ratio):
+    """shared_features by its definition, in numpy: every photo against every other, each way."""
+    descs = [strongest(f, n_features) for f in feats]
+    n = len(descs)
+    count = np.zeros((n, n), np.int32)
+    for i in range(n):
+        for j in range(n):
+            if i == j or len(descs[i]) == 0 or len(descs[j]) == 0:
+                continue
+            d2 = 2.0 - 2.0 * (descs[i] @ descs[j].T)
+            d2 = np.concatenate([d2, np.full((len(d2), 1), np.inf, np.float32)], axis=1)   # no second: passes
+            two = np.sort(d2, axis=1)[:, :2]
+            count[i, j] = (two[:, 0] < np.float32(ratio * ratio) * two[:, 1]).sum()
+    return np.minimum(count, count.T)
+
+
+def test_shared_features_equal_their_definition_with_photos_of_fewer_keypoints():
+    """The compiled pass over each block of products (both directions from one product) counts as
+    the plain definition does, also where photos have fewer keypoints than the strongest k (padded)."""
+    feats = _ring_features(9, seed=3)
+    few = feats[4]
+    feats[4] = Features(few.xy[:30], few.size[:30], few.desc[:30], few.response[:30])
+    feats[7] = Features(few.xy[:1], few.size[:1], few.desc[:1], few.response[:1])
+    for k in (50, 1000):
+        got = shared_features(feats, k, 0.8)
+        assert np.array_equal(got, _counts_by_definition(feats, k, 0.8))
+        assert got.sum() > 0
+
+
 def test_screen_keeps_each_photos_best_partners_and_grows_linearly():
     for n in (12, 24):
         feats = _ring_features(n)
