@@ -60,14 +60,23 @@ def fundamental_to_original(F_work: np.ndarray, scale_ref: float, scale_sup: flo
     return F / np.linalg.norm(F)
 
 
-def fundamental_from_cameras(P_ref: np.ndarray, P_sup: np.ndarray) -> np.ndarray:
-    """F with x_sup^T F x_ref = 0 from two 3x4 projection matrices (HZ eq. 9.1)."""
-    _, _, vt = np.linalg.svd(P_ref)
-    C = vt[-1]                                  # camera centre of the reference, P_ref C = 0
+def fundamental_from_cameras(P_ref: np.ndarray, P_sup: np.ndarray,
+                             ref_parts: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """F with x_sup^T F x_ref = 0 from two 3x4 projection matrices (HZ eq. 9.1).
+
+    ref_parts: camera_parts(P_ref), when the caller has them (they depend on the reference alone,
+    and a set's checks ask for F of every pair: two SVDs a pair otherwise)."""
+    C, P_pinv = camera_parts(P_ref) if ref_parts is None else ref_parts
     e_sup = P_sup @ C
     ex = np.array([[0, -e_sup[2], e_sup[1]], [e_sup[2], 0, -e_sup[0]], [-e_sup[1], e_sup[0], 0]])
-    F = ex @ P_sup @ np.linalg.pinv(P_ref)
+    F = ex @ P_sup @ P_pinv
     return F / np.linalg.norm(F)
+
+
+def camera_parts(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the camera centre (4,), homogeneous, with P C = 0; the pseudo-inverse (4, 3)) of a 3x4 P."""
+    _, _, vt = np.linalg.svd(P)
+    return vt[-1], np.linalg.pinv(P)
 
 
 def convex_hull_share(pts: np.ndarray, size: tuple[int, int]) -> float:

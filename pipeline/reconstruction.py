@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from .geometry import fundamental_from_cameras, symmetric_epipolar_distance
+from .geometry import camera_parts, fundamental_from_cameras, symmetric_epipolar_distance
 from .jit import LazyKernel
 from .params import GeometryParams
 
@@ -76,8 +76,15 @@ class SetCameras:
         return self.K[i] @ np.hstack([self.R[i], -self.R[i] @ self.C[i][:, None]])
 
     def F(self, i: int, j: int) -> np.ndarray:
-        """(3, 3) F with x_j^T F x_i = 0, unit norm."""
-        return fundamental_from_cameras(self.P(i), self.P(j))
+        """(3, 3) F with x_j^T F x_i = 0, unit norm. Each photo's P and its parts are found once
+        per SetCameras (the checks ask for F of every pair of registered photos: 8 800 on a
+        hundred photos)."""
+        memo = self.__dict__.setdefault("_P_memo", {})
+        for k in (i, j):
+            if k not in memo:
+                P = self.P(k)
+                memo[k] = (P, camera_parts(P))
+        return fundamental_from_cameras(memo[i][0], memo[j][0], memo[i][1])
 
     def covisible(self, i: int, j: int) -> np.ndarray:
         """(K,) int point indices observed by both photos."""
@@ -140,7 +147,7 @@ def _input_pairs(pairs: dict, n: int, min_matches: int) -> list[tuple[int, int, 
 
 def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs: dict,
                 rgbs: list[np.ndarray], p: GeometryParams, focal_prior: np.ndarray | None = None,
-                run_maps: Callable[[list[tuple]], list[tuple]] | None = None) -> SetCameras:
+                run_maps: Callable[[list[tuple], Callable[[int, tuple], None]], None] | None = None) -> SetCameras:
     """Cameras of the whole set from our keypoints and verified pair matches, then checked.
 
     keypoints: per photo (N_i, 2) float32 working pixels (the indices that PairGeometry.inlier_idx
@@ -152,8 +159,10 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
     of cameras is held to the rest by one plane, the two runs end apart: such cameras are dropped
     and such pairs get the disagreement as their uncertainty.
 
-    run_maps: runs `map_task` on each argument tuple and returns the results in order (run.py hands
-    the two runs to its worker processes, side by side); default: one after the other, here.
+    run_maps(tasks, arrived): runs `map_task` on each argument tuple and calls arrived(k, result)
+    for task k as each finishes (run.py hands the two runs to its worker processes, side by side:
+    the first run's checks, seconds on one core, then go on while the other run maps); default:
+    one after the other, here.
     """
     import dataclasses
 
@@ -167,15 +176,42 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
     # the GIL) the runs drew from one random generator and their cameras came out up to 3e-4 apart
     # from those of runs one at a time; in a process each, they are the same bit for bit.
     tasks = [(keypoints, sizes, links, p, prior, guess) for guess in p.recon_focal_guesses]
-    runs = []
-    for failure, model, ids, n_models in (run_maps or _run_here)(tasks):
-        if failure:                              # a failed reconstruction is a fallback, not a crash
-            return SetCameras.empty(n, f"the reconstruction failed ({failure})", prior)
-        runs.append((_model_from_bytes(model), ids, n_models))
-    (rec, ids, n_models), others = runs[0], runs[1:]
-    if rec is None:
+    runs: dict[int, tuple] = {}
+    failures: list[str] = []
+
+    def arrived(k: int, result: tuple) -> None:
+        failure, model, ids, n_models = result
+        if failure or failures:                  # a failed reconstruction is a fallback, not a crash
+            failures.append(failure)
+            return
+        rec = _model_from_bytes(model)
+        if rec is None:
+            runs[k] = (None,)
+        elif k == 0:
+            runs[k] = (rec, ids, *_checked(rec, ids, n_models, keypoints, sizes, pairs, rgbs, p, prior))
+        else:
+            runs[k] = (_extract(rec, ids, n, rgbs, keypoints, prior),)
+    (run_maps or _run_here)(tasks, arrived)
+    if any(failures):
+        return SetCameras.empty(n, f"the reconstruction failed ({next(f for f in failures if f)})", prior)
+    if runs[0][0] is None:
         return SetCameras.empty(n, "no initial pair of photos could be reconstructed", prior)
-    cams = _check(_extract(rec, ids, n, rgbs, keypoints, prior), pairs, sizes, p, n_models)
+    _, _, cams, wanted, samples, unc = runs[0]
+    for k in range(1, len(tasks)):
+        alt = runs[k][0]
+        if alt is None:
+            continue
+        cams, spread = _compare_runs(cams, alt, sizes, p, wanted, samples)
+        samples = _SceneSamples(cams, sizes)
+        unc = np.fmax(unc, spread)
+    return dataclasses.replace(cams, pair_unc=unc, seconds=time.perf_counter() - t0)
+
+
+def _checked(rec, ids: list[int], n_models: int, keypoints, sizes, pairs: dict, rgbs, p: GeometryParams,
+             prior: np.ndarray) -> tuple:
+    """The first run's cameras checked (_check), the pairs that want their lines' uncertainty,
+    the scene's samples and that uncertainty: (cams, wanted (n, n) bool, samples, unc (n, n))."""
+    cams = _check(_extract(rec, ids, len(keypoints), rgbs, keypoints, prior), pairs, sizes, p, n_models)
     # the lines' uncertainty only for pairs that can use it: a pair whose cameras see too little of
     # the same scene is rejected whatever its lines (on a hundred photos 2 400 of 8 700 pairs pass;
     # the others' NaN reads "not estimated")
@@ -183,14 +219,8 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
     for (i, j), g in pairs.items():          # a homography pair of registered photos is swept when its lines are certain
         if g.is_homography:
             wanted[i, j] = wanted[j, i] = True
-    unc = _pair_uncertainty(rec, ids, cams, sizes, wanted)
-    for rec2, ids2, _ in others:
-        if rec2 is None:
-            continue
-        alt = _extract(rec2, ids2, n, rgbs, keypoints, prior)
-        cams, spread = _compare_runs(cams, alt, sizes, p, wanted)
-        unc = np.fmax(unc, spread)
-    return dataclasses.replace(cams, pair_unc=unc, seconds=time.perf_counter() - t0)
+    samples = _SceneSamples(cams, sizes)          # the scene's points per pair, for both measures
+    return cams, wanted, samples, _pair_uncertainty(rec, ids, cams, sizes, wanted, samples)
 
 
 def map_task(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_guess: float
@@ -210,8 +240,9 @@ def map_task(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, foca
     return "", files, ids, n_models
 
 
-def _run_here(tasks: list[tuple]) -> list[tuple]:
-    return [map_task(*t) for t in tasks]
+def _run_here(tasks: list[tuple], arrived: Callable[[int, tuple], None]) -> None:
+    for k, t in enumerate(tasks):
+        arrived(k, map_task(*t))
 
 
 def _model_from_bytes(files: dict[str, bytes] | None):
@@ -292,7 +323,7 @@ class _SceneSamples:
     on a hundred photos, where finding each photo's points anew cost 12 s)."""
 
     def __init__(self, cams: "SetCameras", sizes):
-        self.cams, self.sizes, self._lifted = cams, sizes, {}
+        self.cams, self.sizes, self._lifted, self._pairs = cams, sizes, {}, {}
 
     def _lift(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """(grid x_i (G, 2) repeated per depth (5G, 2), the world points (5G, 3)), empty without points."""
@@ -312,6 +343,11 @@ class _SceneSamples:
         return self._lifted[i]
 
     def __call__(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        if (i, j) not in self._pairs:        # kept: the uncertainty and the runs' comparison ask for the same pairs
+            self._pairs[(i, j)] = self._project(i, j)
+        return self._pairs[(i, j)]
+
+    def _project(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         x, X = self._lift(i)
         if not len(x):
             return x, np.zeros((0, 2))
@@ -362,10 +398,12 @@ class _Covisibility:
         return out
 
 
-def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParams, wanted: np.ndarray | None = None):
+def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParams, wanted: np.ndarray | None = None,
+                  samples: "_SceneSamples | None" = None):
     """Drop the cameras whose focal length the second run puts elsewhere; (n, n) disagreement of
     the pairs' epipolar lines between the runs (px, 90th percentile at the scene's depths), for
-    the pairs `wanted` ((n, n) bool; default all), NaN elsewhere."""
+    the pairs `wanted` ((n, n) bool; default all), NaN elsewhere. samples: _SceneSamples(cams, sizes)
+    when the caller has it."""
     from .geometry import epipolar_lines
     n = len(cams.registered)
     reg = cams.registered.copy()
@@ -378,7 +416,7 @@ def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParam
             reg[k], reasons[k] = False, (f"its focal length is not determined by the photos (two reconstructions "
                                          f"from different starting values differ by {abs(ratio - 1):.0%})")
     spread = np.full((n, n), np.nan)
-    samples = _SceneSamples(cams, sizes)
+    samples = samples or _SceneSamples(cams, sizes)
     for i in np.nonzero(reg)[0]:
         for j in np.nonzero(reg)[0]:
             if i == j or not (alt.registered[i] and alt.registered[j]) or (wanted is not None and not wanted[i, j]):
@@ -623,9 +661,11 @@ def _line_rms_numba():
 _line_rms_kernel = LazyKernel(_line_rms_numba)
 
 
-def _pair_uncertainty(rec, ids: list[int], cams: SetCameras, sizes, wanted: np.ndarray | None = None) -> np.ndarray:
+def _pair_uncertainty(rec, ids: list[int], cams: SetCameras, sizes, wanted: np.ndarray | None = None,
+                      samples: "_SceneSamples | None" = None) -> np.ndarray:
     """(n, n) line uncertainty for every pair of registered photos, or only those `wanted`
-    ((n, n) bool), NaN elsewhere and when not estimable."""
+    ((n, n) bool), NaN elsewhere and when not estimable. samples: _SceneSamples(cams, sizes) when
+    the caller has it."""
     import pycolmap
 
     n = len(cams.registered)
@@ -646,7 +686,7 @@ def _pair_uncertainty(rec, ids: list[int], cams: SetCameras, sizes, wanted: np.n
         return out
     # The covariance assumes 1 px image noise; scale it to the residuals we actually have.
     sigma2 = float(np.mean(cams.point_error.astype(np.float64) ** 2)) if len(cams.point_error) else 1.0
-    samples = _SceneSamples(cams, sizes)
+    samples = samples or _SceneSamples(cams, sizes)
     for i in reg:
         pi = rec.image(ids[i]).cam_from_world()
         for j in reg:

@@ -705,16 +705,16 @@ def set_cameras(photo_set: PhotoSet, params: Params, pairs: dict, keypoints: lis
         return cams
     prior = np.array([p.focal_prior_px if p.focal_prior_px else np.nan for p in photos], float)
 
-    def run_maps(tasks: list[tuple]) -> list[tuple]:
-        out: dict[int, tuple] = {}
+    def run_maps(tasks: list[tuple], arrived: Callable[[int, tuple], None]) -> None:
+        done = [0]
         progress("cameras", 0, len(tasks))
 
-        def got(res):
-            out[res[0]] = res[1]
-            progress("cameras", len(out), len(tasks))
+        def got(res):           # here, in the main process, while the other run goes on
+            arrived(*res)
+            done[0] += 1
+            progress("cameras", done[0], len(tasks))
         runner.map(_task_map, [(n, *t) for n, t in enumerate(tasks)], got,
                    label=lambda a: f"the reconstruction of {photo_set.root}")
-        return [out[n] for n in range(len(tasks))]
     cams = reconstruct(keypoints, [p.size for p in photos], pairs, [p.rgb for p in photos], params.geometry, prior,
                        run_maps=run_maps if runner is not None else None)
     cache.put("cameras", k, cache_mod.to_bytes(cams))
