@@ -375,7 +375,7 @@ def smooth_volume(volume: np.ndarray, sp: SweepParams, n_fronto: int) -> np.ndar
     along `smooth_paths` directions with a penalty `smooth_p1` for a step to the next plane and
     `smooth_p2` for a jump; planes [0, n_fronto) (parallel to the image) and [n_fronto, D) (parallel
     to the ground) are two families, a change of family is a jump. Returns (h, w) int16."""
-    cost = np.where(volume >= 0, volume, np.float32(sp.smooth_unseen)).astype(np.float32)
+    cost = np.where(volume >= 0, volume, np.float32(sp.smooth_unseen)).astype(np.float32, copy=False)
     total = _sgm_kernel(cost, int(n_fronto), float(sp.smooth_p1), float(sp.smooth_p2), int(sp.smooth_paths))
     return np.argmin(total, axis=2).astype(np.int16)
 
