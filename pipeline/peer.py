@@ -100,7 +100,9 @@ def _median_numba():
     """median_difference's pass (numba): (S, h, w) float32, NaN where a support does not cover the
     pixel -> (h, w) float32 median of the covering values, NaN where none covers it. A row at a
     time, the supports are inserted into per-pixel sorted columns by compare-exchange (NaN as +inf,
-    sorting last), a loop without branches over the row that the compiler vectorises."""
+    sorting last), a loop without branches over the row that the compiler vectorises: the insertion
+    of sweep._volume_numba, kept apart (a compiled helper shared by two kernels built on first use
+    would have to be a global of both, and numba does not cache kernels that call closures)."""
     import numba
 
     @numba.njit(cache=True, nogil=True)
