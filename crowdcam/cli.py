@@ -11,7 +11,9 @@ import argparse
 import dataclasses
 import json
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -561,13 +563,30 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a `kill`, a job scheduler's stop), raised where the run is, so that it stops as it
+    does on Ctrl-C: the workers terminated, no output half-written, the finished pairs cached.
+    Without it the default action ended the main process at once and left its pool's workers
+    behind, idle, for ever."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     from pipeline.loading import InputError
     from pipeline.run import SchedulerError, WorkerDied
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         return args.fn(args)
+    except Terminated:
+        print("crowdcam: terminated (SIGTERM); the finished pairs are cached, a re-run resumes", file=sys.stderr)
+        return 143
     except (InputError, CliError, SchedulerError) as e:
         print(f"crowdcam: error: {one_line(e)}", file=sys.stderr)
         return EXIT_USAGE
@@ -584,6 +603,9 @@ def main(argv: list[str] | None = None) -> int:
     except MemoryError:
         print("crowdcam: error: out of memory (try a smaller --max-side)", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -314,7 +314,16 @@ def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
     if mp.parent_process() is not None:        # a pool worker: Ctrl-C is the main process's to handle
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         keep_freed_memory()                    # its large arrays reused pair after pair (pipeline/memory.py)
+        threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
     _W["rgbs"], _W["params"], _W["channels"] = rgbs, params, {}
+
+
+def _exit_with_parent(parent: int) -> None:
+    """A worker whose main process is gone (killed: SIGKILL, the out-of-memory killer) leaves too.
+    It waited on its task queue for ever otherwise, holding its memory; its parent then changes."""
+    while os.getppid() == parent:
+        time.sleep(1.0)
+    os._exit(1)
 
 
 def _init_worker_from_files(folder: str, n: int, params: Params) -> None:

@@ -77,12 +77,84 @@ def test_ctrl_c_stops_within_two_seconds_and_leaves_nothing(tmp_path, order):
         assert p.poll() is None, p.stderr.read()
         assert time.time() - t0 < 600
         time.sleep(0.05)
+    workers = _children(p.pid)
+    assert len(workers) >= 2
     p.send_signal(signal.SIGINT)
     assert p.wait(timeout=120) == 130    # the 2 s stop is measured by bench/stress.py, not asserted here
     assert "Traceback" not in p.stderr.read()
-    left = subprocess.run(["pgrep", "-f", f"{tmp_path}"], capture_output=True, text=True).stdout.strip()
-    assert left == ""                                    # no orphan worker
+    t0 = time.time()
+    while _alive(workers):                               # no orphan worker (the tracker leaves after the run)
+        assert time.time() - t0 < 60, "a worker outlived the run"
+        time.sleep(0.2)
     assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+def _hanging_run(tmp_path, order):
+    """A run whose first pair hangs in a worker, returned once a worker is inside it."""
+    i, j = order[0]
+    marker = tmp_path / "hanging"
+    p = detect(tmp_path, {"CROWDCAM_FAULT": f"hang:{i},{j}", "CROWDCAM_FAULT_ONCE": str(marker)})
+    t0 = time.time()
+    while not marker.exists():
+        assert p.poll() is None, p.stderr.read()
+        assert time.time() - t0 < 600
+        time.sleep(0.05)
+    return p
+
+
+def _children(pid: int) -> list[int]:
+    """The live processes whose parent is pid (a run's pool workers among them)."""
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                stat = open(f"/proc/{d}/stat").read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(stat[1]) == pid and stat[0] != "Z":
+                out.append(int(d))
+    return out
+
+
+def _alive(pids: list[int]) -> list[int]:
+    alive = []
+    for w in pids:
+        try:
+            if open(f"/proc/{w}/stat").read().rsplit(")", 1)[1].split()[0] != "Z":
+                alive.append(w)
+        except OSError:
+            pass
+    return alive
+
+
+def test_sigterm_stops_like_ctrl_c(tmp_path, order):
+    """A `kill` (SIGTERM) stops the run as Ctrl-C does: one line, exit 143, no orphan worker,
+    no output; before, the main process died at once and its workers stayed, idle."""
+    p = _hanging_run(tmp_path, order)
+    workers = _children(p.pid)
+    assert len(workers) >= 2                             # the pool's workers (and its resource tracker)
+    p.send_signal(signal.SIGTERM)
+    assert p.wait(timeout=120) == 143
+    err = p.stderr.read()
+    assert "terminated" in err and err.count("\n") == 1 and "Traceback" not in err
+    t0 = time.time()
+    while _alive(workers):                               # the tracker leaves once the run has gone
+        assert time.time() - t0 < 60, "a worker outlived the run"
+        time.sleep(0.2)
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+def test_workers_leave_when_the_main_process_is_killed(tmp_path, order):
+    """SIGKILL cannot be caught: the workers notice their parent is gone and leave by themselves."""
+    p = _hanging_run(tmp_path, order)
+    workers = _children(p.pid)
+    assert len(workers) >= 2
+    p.kill()
+    p.wait(timeout=60)
+    t0 = time.time()
+    while _alive(workers):
+        assert time.time() - t0 < 60, "the workers outlived their main process"
+        time.sleep(0.2)
 
 
 def test_a_full_disk_while_writing_outputs(tmp_path, monkeypatch):
