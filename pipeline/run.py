@@ -15,6 +15,7 @@ import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, as_completed, wait
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
@@ -373,13 +374,24 @@ def _fault_injection(i: int, j: int) -> None:
             time.sleep(1)
 
 
-def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None
-               ) -> tuple[tuple[int, int], bytes, bytes]:
+def _task_pair(i: int, j: int, g: PairGeometry, sweep_args: tuple | None = None,
+               store_in: tuple[str, str] | None = None) -> tuple[tuple[int, int], bytes | None, bytes, int]:
     """One ordered pair: strips (epipolar pair) or aligned patches (homography pair), and with
     sweep_args = (cam_i, cam_j, inverse depths) also its cost volume over the depth planes.
-    Returns (i, j), the result's bytes and its summary's (store.light_of: what the main process keeps
+    Returns (i, j), the result's bytes, its summary's (store.light_of: what the main process keeps
     of every pair, so that it need not decode the result to make it; the summary's fields are stored
-    exactly, so it equals the decoded result's)."""
+    exactly, so it equals the decoded result's) and 0; or, with store_in = (cache folder, key), the
+    result written there as the pair's entry (PairCache.write), None in its place and the bytes
+    written (the result's bytes after all if it could not be written)."""
+    (i, j), data, light = _pair_result(i, j, g, sweep_args)
+    if store_in is not None:
+        stored = cache_mod.PairCache(Path(store_in[0]), max_bytes=None).write("pair", store_in[1], data)
+        if stored:
+            return (i, j), None, light, stored
+    return (i, j), data, light, 0
+
+
+def _pair_result(i: int, j: int, g: PairGeometry, sweep_args: tuple | None) -> tuple[tuple[int, int], bytes, bytes]:
     _fault_injection(i, j)
     p = _W["params"]
     rgb_i, rgb_j = _W["rgbs"][i], _W["rgbs"][j]
@@ -950,8 +962,11 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
 
         def got_pair(res):
             _check(cancel)
-            ij, data, light = res
-            cache.put("pair", pkey[ij], data)
+            ij, data, light, stored = res
+            if data is None:         # the worker wrote the entry (store_in): counted here
+                cache.adopt("pair", pkey[ij], stored)
+            else:
+                cache.put("pair", pkey[ij], data)
             cache.put("light", pkey[ij], light)
             if lazy:     # decoded when first read (a map, a viewer), not here: the main process shares the cores
                 results.put_lazy(ij, _decode_light(light), pkey[ij], lambda d, ij=ij: load(ij, d))
@@ -961,7 +976,10 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 on_pair(ij)
             pdone[0] += 1
             progress("pairs", pdone[0], len(ordered))
-        runner.map(_task_pair, [(i, j, pairs[(i, j)], sweep_args(i, j)) for i, j in todo], got_pair,
+        # local workers write their pairs' entries into the cache themselves (a Dask worker may be on
+        # another machine: its results come back to be cached here)
+        store_in = (lambda ij: (str(cache.root), pkey[ij])) if lazy and not scheduler else (lambda ij: None)
+        runner.map(_task_pair, [(i, j, pairs[(i, j)], sweep_args(i, j), store_in((i, j))) for i, j in todo], got_pair,
                    label=lambda a: f"the pair {photos[a[0]].name} -> {photos[a[1]].name}",
                    urgent=None if prefer is None else (lambda a: a[0] == prefer()))
         timings["pairs_s"] = time.perf_counter() - t1

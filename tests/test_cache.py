@@ -64,6 +64,25 @@ def test_size_cap_evicts_least_recently_used(tmp_path):
     assert c.size() <= 10_000
 
 
+def test_an_entry_written_elsewhere_is_adopted_as_this_runs(tmp_path):
+    """A pool worker writes its pair's entry itself (PairCache.write); the run's cache adopts it:
+    counted against the cap and never evicted by this run, as if it had put it."""
+    earlier = PairCache(tmp_path, max_bytes=None)
+    earlier.put("pair", "aa" * 12, os.urandom(4000))
+    old = time.time() - 100
+    os.utime(earlier.path("pair", "aa" * 12), (old, old))
+    c = PairCache(tmp_path, max_bytes=6_000)
+    worker = PairCache(tmp_path, max_bytes=None)                  # another process's view of the folder
+    n = worker.write("pair", "bb" * 12, os.urandom(4000))
+    assert n > 4000 and unpack(c.path("pair", "bb" * 12).read_bytes())
+    c.adopt("pair", "bb" * 12, n)                                # over 6 kB: the earlier run's entry goes
+    left = {p.stem for p, _, _ in c.entries()}
+    assert left == {"bb" * 12}
+    assert PairCache(None).write("pair", "cc" * 12, b"x") == 0    # no cache: nothing written
+    (tmp_path / "pair" / "dd").write_text("a file where the folder should be")
+    assert worker.write("pair", "dd" * 12, b"x") == 0               # cannot be written: 0, no exception
+
+
 def run_cli(*args):
     return subprocess.run([sys.executable, "-m", "crowdcam", *map(str, args)], capture_output=True, text=True,
                           cwd=ROOT, timeout=600)
