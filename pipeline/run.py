@@ -330,6 +330,25 @@ def _exit_with_parent(parent: int) -> None:
 def _init_worker_from_files(folder: str, n: int, params: Params) -> None:
     """_init_worker with the photos read from `folder` (_Runner writes them there, one .npy each)."""
     _init_worker([np.load(os.path.join(folder, f"{k}.npy")) for k in range(n)], params)
+    _W["folder"] = folder
+
+
+_FEATURE_FIELDS = ("xy", "size", "desc", "response")
+
+
+def _worker_features(k: int) -> Features:
+    """Photo k's features in a pool worker, from the files _Runner.share_features wrote; the
+    last 32 read are kept (a photo's geometry tasks come together: (i, j) for j after i)."""
+    from collections import OrderedDict
+    kept = _W.setdefault("features", OrderedDict())
+    if k not in kept:
+        path = lambda f: os.path.join(_W["folder"], f"features-{k}-{f}.npy")
+        arrays = {f: np.load(path(f)) if os.path.exists(path(f)) else None for f in _FEATURE_FIELDS}
+        kept[k] = Features(**arrays)            # (responses unknown: no file, None)
+        while len(kept) > 32:
+            kept.popitem(last=False)
+    kept.move_to_end(k)
+    return kept[k]
 
 
 def _channels(i: int):
@@ -344,8 +363,13 @@ def _task_features(i: int) -> tuple[int, Features]:
     return i, detect(_W["rgbs"][i], gp.sift_features, gp.sift_contrast)
 
 
-def _task_geometry(i: int, j: int, fi: Features, fj: Features) -> tuple[tuple[int, int], bytes]:
+def _task_geometry(i: int, j: int, fi: Features | None = None, fj: Features | None = None
+                   ) -> tuple[tuple[int, int], bytes]:
+    """The geometry of photos i and j; their features given, or (None) read from the files that
+    _Runner.share_features wrote for the pool."""
     rgbs, p = _W["rgbs"], _W["params"]
+    fi = fi if fi is not None else _worker_features(i)
+    fj = fj if fj is not None else _worker_features(j)
     g = estimate_pair(i, j, fi, fj, rgbs[i].shape[:2], rgbs[j].shape[:2], p.geometry)
     return (i, j), cache_mod.to_bytes(g)
 
@@ -479,6 +503,20 @@ class _Runner:
                 np.save(os.path.join(self._folder, f"{k}.npy"), rgb)
         return self._folder, len(self.args[0]), self.args[1]
 
+    def share_features(self, feats: dict[int, Features]) -> bool:
+        """Photos' features written once into the pool's folder, for geometry tasks that then carry
+        only their two indices (_worker_features). Each task carried both photos' descriptors before:
+        about 4 MB pickled, piped and unpickled per pair, 775 times on a hundred photos. False (pass
+        them in the tasks) when the tasks run here."""
+        if self.workers <= 1:
+            return False
+        folder = self._photo_files()[0]
+        for k, f in feats.items():
+            for name in _FEATURE_FIELDS:
+                if getattr(f, name) is not None:
+                    np.save(os.path.join(folder, f"features-{k}-{name}.npy"), getattr(f, name))
+        return True
+
     def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
             label: Callable[[tuple], str] = lambda a: str(a[:2]),
             urgent: Callable[[tuple], bool] | None = None) -> None:
@@ -608,6 +646,10 @@ class _DaskRunner:
                                  f"({type(e).__name__})") from None
         self.client.register_plugin(_photos_plugin(rgbs, params), name="crowdcam-photos")
         self.workers = len(self.client.scheduler_info().get("workers", {}))
+
+    def share_features(self, feats: dict) -> bool:
+        """False: a Dask worker may be on another machine, the features travel in the tasks."""
+        return False
 
     def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
             label: Callable[[tuple], str] = lambda a: str(a[:2]),
@@ -855,7 +897,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
                 gdone[0] += 1
                 progress("geometry", gdone[0], len(todo))
-            runner.map(_task_geometry, [(i, j, feats[i], feats[j]) for i, j in todo], got_geometry,
+            shared = runner.share_features({k: feats[k] for k in {k for ij in todo for k in ij}})
+            runner.map(_task_geometry, [(i, j) if shared else (i, j, feats[i], feats[j]) for i, j in todo], got_geometry,
                        label=lambda a: f"the geometry of {photos[a[0]].name} and {photos[a[1]].name}")
         feats.clear()                    # descriptors: 4 MB a photo, not needed from here on
         cameras = None

@@ -125,3 +125,37 @@ def test_swept_pairs_search_strips_of_their_own_fans():
     swept = {ij for ij in fans if res.is_swept(*ij)}
     assert swept and swept != set(fans)
     assert all(fans[ij] == (1 if ij in swept else 3) for ij in fans)
+
+
+def test_geometry_tasks_read_the_shared_features_as_they_were_given():
+    """A local pool's geometry tasks carry only two indices: the photos' features are written once
+    into the pool's folder and read back there (run._Runner.share_features). Read back, they are
+    the same features (responses unknown stay unknown), and a pair's geometry is the same bytes."""
+    from pipeline import run
+    from pipeline.features import Features
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+
+    params = get_preset("default").replace(max_side=200)
+    ps = load_set(SAMPLE_SETS / "tabletop_ball", params.max_side)
+    rgbs = [p.rgb for p in ps.photos]
+    gp = params.geometry
+    f0, f1 = (run.detect(rgbs[k], gp.sift_features, gp.sift_contrast) for k in (0, 1))
+    f1 = Features(f1.xy, f1.size, f1.desc)                                   # responses unknown
+    runner = run._Runner(rgbs, params, 2)
+    saved = dict(run._W)
+    try:
+        assert runner.share_features({0: f0, 1: f1})
+        run._init_worker_from_files(runner._folder, len(rgbs), params)       # as a pool worker starts
+        g0, g1 = run._worker_features(0), run._worker_features(1)
+        for a, b in ((f0, g0), (f1, g1)):
+            for name in ("xy", "size", "desc"):
+                np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        np.testing.assert_array_equal(g0.response, f0.response)
+        assert g1.response is None
+        assert run._task_geometry(0, 1) == run._task_geometry(0, 1, f0, f1)
+        assert not run._Runner(rgbs, params, 1).share_features({0: f0})     # inline: passed in the tasks
+    finally:
+        run._W.clear()
+        run._W.update(saved)
+        runner.close()
