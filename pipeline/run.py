@@ -316,6 +316,9 @@ def _init_worker(rgbs: list[np.ndarray], params: Params) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         keep_freed_memory()                    # its large arrays reused pair after pair (pipeline/memory.py)
         threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+        if "NUMBA_NUM_THREADS" not in os.environ:    # the workers fill the cores: one thread each
+            import numba
+            numba.set_num_threads(1)
     _W["rgbs"], _W["params"], _W["channels"] = rgbs, params, {}
 
 
@@ -480,7 +483,11 @@ class _Runner:
 
     def _ensure_pool(self) -> None:
         if self.pool is None:
-            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+            # one BLAS thread per worker (read when a worker loads numpy, so it goes in the environment
+            # they inherit); numba's threads are set in the worker itself (_init_worker): numba reads
+            # NUMBA_NUM_THREADS again at every compile, and in this process, once its threads had
+            # started, a kernel compiled later raised "Cannot set NUMBA_NUM_THREADS to a different value"
+            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
                 os.environ.setdefault(var, "1")
             self.pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
                                             initializer=_init_worker_from_files, initargs=self._photo_files())
