@@ -181,8 +181,9 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
 
     def arrived(k: int, result: tuple) -> None:
         failure, model, ids, n_models = result
-        if failure or failures:                  # a failed reconstruction is a fallback, not a crash
+        if failure:                              # a failed reconstruction is a fallback, not a crash
             failures.append(failure)
+        if failures:
             return
         rec = _model_from_bytes(model)
         if rec is None:
@@ -192,8 +193,8 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
         else:
             runs[k] = (_extract(rec, ids, n, rgbs, keypoints, prior),)
     (run_maps or _run_here)(tasks, arrived)
-    if any(failures):
-        return SetCameras.empty(n, f"the reconstruction failed ({next(f for f in failures if f)})", prior)
+    if failures:
+        return SetCameras.empty(n, f"the reconstruction failed ({failures[0]})", prior)
     if runs[0][0] is None:
         return SetCameras.empty(n, "no initial pair of photos could be reconstructed", prior)
     _, _, cams, wanted, samples, unc = runs[0]
@@ -202,7 +203,7 @@ def reconstruct(keypoints: list[np.ndarray], sizes: list[tuple[int, int]], pairs
         if alt is None:
             continue
         cams, spread = _compare_runs(cams, alt, sizes, p, wanted, samples)
-        samples = _SceneSamples(cams, sizes)
+        samples = None                    # the cameras kept changed: a further run's comparison samples anew
         unc = np.fmax(unc, spread)
     return dataclasses.replace(cams, pair_unc=unc, seconds=time.perf_counter() - t0)
 
@@ -416,7 +417,7 @@ def _compare_runs(cams: "SetCameras", alt: "SetCameras", sizes, p: GeometryParam
             reg[k], reasons[k] = False, (f"its focal length is not determined by the photos (two reconstructions "
                                          f"from different starting values differ by {abs(ratio - 1):.0%})")
     spread = np.full((n, n), np.nan)
-    samples = samples or _SceneSamples(cams, sizes)
+    samples = _SceneSamples(cams, sizes) if samples is None else samples
     for i in np.nonzero(reg)[0]:
         for j in np.nonzero(reg)[0]:
             if i == j or not (alt.registered[i] and alt.registered[j]) or (wanted is not None and not wanted[i, j]):
@@ -686,7 +687,7 @@ def _pair_uncertainty(rec, ids: list[int], cams: SetCameras, sizes, wanted: np.n
         return out
     # The covariance assumes 1 px image noise; scale it to the residuals we actually have.
     sigma2 = float(np.mean(cams.point_error.astype(np.float64) ** 2)) if len(cams.point_error) else 1.0
-    samples = samples or _SceneSamples(cams, sizes)
+    samples = _SceneSamples(cams, sizes) if samples is None else samples
     for i in reg:
         pi = rec.image(ids[i]).cam_from_world()
         for j in reg:

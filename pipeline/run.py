@@ -13,6 +13,7 @@ import multiprocessing as mp
 import os
 import threading
 import time
+from collections import OrderedDict
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, as_completed, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -342,7 +343,6 @@ _FEATURE_FIELDS = ("xy", "size", "desc", "response")
 def _worker_features(k: int) -> Features:
     """Photo k's features in a pool worker, from the files _Runner.share_features wrote; the
     last 32 read are kept (a photo's geometry tasks come together: (i, j) for j after i)."""
-    from collections import OrderedDict
     kept = _W.setdefault("features", OrderedDict())
     if k not in kept:
         path = lambda f: os.path.join(_W["folder"], f"features-{k}-{f}.npy")
@@ -474,6 +474,8 @@ class _Runner:
     the first waiting task that passes goes next, else the first in order. With it, at most
     workers + 2 tasks are in the pool at a time, so that a change of mind (a viewer's reference)
     waits for those alone; without it, every task is queued at once."""
+
+    on_this_machine = True        # its workers share this machine's files (share_features, the cache)
 
     def __init__(self, rgbs: list[np.ndarray], params: Params, workers: int):
         self.workers = workers
@@ -641,6 +643,8 @@ class _DaskRunner:
     runs. Dask reschedules the tasks of a worker that dies; a task that kills workers repeatedly
     ends the run with WorkerDied, like the local pool."""
 
+    on_this_machine = False       # a worker may be elsewhere: tasks and results carry their bytes
+
     def __init__(self, rgbs: list[np.ndarray], params: Params, scheduler: str, timeout: float = 10.0):
         try:
             from distributed import Client
@@ -653,10 +657,6 @@ class _DaskRunner:
                                  f"({type(e).__name__})") from None
         self.client.register_plugin(_photos_plugin(rgbs, params), name="crowdcam-photos")
         self.workers = len(self.client.scheduler_info().get("workers", {}))
-
-    def share_features(self, feats: dict) -> bool:
-        """False: a Dask worker may be on another machine, the features travel in the tasks."""
-        return False
 
     def map(self, fn, arg_list: list[tuple], on_done: Callable[[object], None],
             label: Callable[[tuple], str] = lambda a: str(a[:2]),
@@ -904,7 +904,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 pairs[ij] = cache_mod.from_bytes(PairGeometry, data)
                 gdone[0] += 1
                 progress("geometry", gdone[0], len(todo))
-            shared = runner.share_features({k: feats[k] for k in {k for ij in todo for k in ij}})
+            needed = {k for ij in todo for k in ij}
+            shared = runner.on_this_machine and runner.share_features({k: feats[k] for k in needed})
             runner.map(_task_geometry, [(i, j) if shared else (i, j, feats[i], feats[j]) for i, j in todo], got_geometry,
                        label=lambda a: f"the geometry of {photos[a[0]].name} and {photos[a[1]].name}")
         feats.clear()                    # descriptors: 4 MB a photo, not needed from here on
@@ -1028,7 +1029,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             progress("pairs", pdone[0], len(ordered))
         # local workers write their pairs' entries into the cache themselves (a Dask worker may be on
         # another machine: its results come back to be cached here)
-        store_in = (lambda ij: (str(cache.root), pkey[ij])) if lazy and not scheduler else (lambda ij: None)
+        store_in = (lambda ij: (str(cache.root), pkey[ij])) if lazy and runner.on_this_machine else (lambda ij: None)
         runner.map(_task_pair, [(i, j, pairs[(i, j)], sweep_args(i, j), store_in((i, j))) for i, j in todo], got_pair,
                    label=lambda a: f"the pair {photos[a[0]].name} -> {photos[a[1]].name}",
                    urgent=None if prefer is None else (lambda a: a[0] == prefer()))

@@ -14,6 +14,7 @@ Departure from the paper (its sets have 4-10 photos and every pair is tried).
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -57,8 +58,9 @@ def shared_features(feats: list[Features], n_features: int, ratio: float) -> np.
     products serve both directions (i's keypoints in j, row by row; j's in i, column by column), so
     n^2 k^2 128 / 2 multiply-adds in all (100 photos, k = 256: about 80 GFLOP). The two nearest per
     row and per column come from one compiled pass over the block (_two_smallest_numba), the photos
-    in two threads. Before, every photo's product ran against all the others, and a partition per
-    direction found the two nearest: 7.4 s on a hundred photos in the main process, the pool idle."""
+    in threads, one per core. Before, every photo's product ran against all the others, and a
+    partition per direction found the two nearest: 7.4 s on a hundred photos in the main process,
+    the pool idle."""
     n = len(feats)
     descs = [strongest(f, n_features) for f in feats]
     k = max((len(d) for d in descs), default=0)
@@ -76,7 +78,8 @@ def shared_features(feats: list[Features], n_features: int, ratio: float) -> np.
         if i < n - 1:
             dots = pad[i] @ flat_t[:, (i + 1) * k:]                   # (k of i, (n - i - 1) k of the others)
             _two_smallest_kernel(dots, valid[i], valid[i + 1:], k, r2, count[i, i + 1:], count[i + 1:, i])
-    with ThreadPoolExecutor(2) as pool:         # BLAS's products and the compiled pass let go of the GIL
+    # a thread per core (at most 8): BLAS's products and the compiled pass let go of the GIL
+    with ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 8))) as pool:
         list(pool.map(block, range(n)))
     return np.minimum(count, count.T)
 
