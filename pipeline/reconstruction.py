@@ -307,6 +307,8 @@ def _map(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_gu
         # robust refinement below to Ceres' own function tolerance; most of its mapping time went there
         large = len(keypoints) > p.recon_light_ba_above
         opts.mapper.ba_global_ignore_redundant_points3D = large
+        if large:   # and each global one stops when an iteration gains less than this share of the cost
+            opts.ba_global_function_tolerance = p.recon_light_ba_tolerance
         pycolmap.set_random_seed(0)
         models = pycolmap.incremental_mapping(db_path, tmp, os.path.join(tmp, "out"), opts)
     if not models:
