@@ -50,7 +50,7 @@ Progress = Callable[[str, int, int], None]
 class Cancelled(Exception):
     """detect_set was stopped through its `cancel` event."""
 MAP_FIELDS = ("hog_map", "color_map", "evidence", "plane_diff")
-MAPS_VERSION = "2"      # bump when a change alters how pair results become a photo's map (its cache key)
+MAPS_VERSION = "3"      # bump when a change alters how pair results become a photo's map (its cache key)
 
 
 @dataclass

@@ -31,6 +31,25 @@ def test_refine_output_range():
     assert out.shape == (40, 50) and out.min() >= 0 and out.max() <= 1
 
 
+def test_refine_makes_no_new_extremes():
+    # "no evidence" (0.5) beside static evidence (0.1), the photo dark, then a bright line and grey
+    # just past the step: the plain guided filter overshoots past 0.5 there (0.58); refine must not
+    rgb = np.zeros((60, 80, 3), np.uint8)
+    rgb[:, 41] = 255
+    rgb[:, 42:] = 128
+    dyn = np.full((60, 80), 0.1, np.float32)
+    dyn[:, 40:] = 0.5
+    gray = rgb[..., 0].astype(np.float32) / 255.0
+    assert guided_filter(gray, dyn, 6, 0.01).max() > 0.55         # the overshoot this guards against
+    out = refine(dyn, rgb, 6, 0.01)
+    assert out.max() <= 0.5 and out.min() >= 0.1
+    assert np.all(out[:, 55:] == 0.5)                              # far from the step: untouched
+    spot = np.full((60, 80), 0.2, np.float32)
+    spot[28:33, 38:43] = 0.9                                       # a mover is smoothed, not widened
+    out = refine(spot, rgb, 4, 0.01)
+    assert np.all(out[:, :30] == 0.2) and out.max() <= 0.9
+
+
 def test_gain_offset_is_recovered_despite_outliers():
     rng = np.random.default_rng(2)
     ref = rng.uniform(20, 230, (500, 3))
