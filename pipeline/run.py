@@ -872,7 +872,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             if shared is None or shared.shape != (n, n):
                 ensure_features(range(n))
                 progress("screen", 0, 1)
-                shared = shared_features([feats[i] for i in range(n)], gp.screen_features, gp.ratio)
+                shared = shared_features([feats[i] for i in range(n)], gp.screen_features, gp.ratio, workers)
                 buf = io.BytesIO()
                 np.save(buf, shared)
                 cache.put("screen", skey, buf.getvalue())

@@ -14,7 +14,6 @@ Departure from the paper (its sets have 4-10 photos and every pair is tried).
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -50,7 +49,7 @@ def strongest(f: Features, k: int) -> np.ndarray:
     return f.desc[np.sort(np.argpartition(-f.response, k - 1)[:k])]
 
 
-def shared_features(feats: list[Features], n_features: int, ratio: float) -> np.ndarray:
+def shared_features(feats: list[Features], n_features: int, ratio: float, threads: int = 1) -> np.ndarray:
     """(n, n) int32: for each ordered pair, how many of photo i's strongest keypoints find a match
     among photo j's strongest that passes Lowe's ratio test; symmetrised by the minimum.
 
@@ -58,7 +57,8 @@ def shared_features(feats: list[Features], n_features: int, ratio: float) -> np.
     products serve both directions (i's keypoints in j, row by row; j's in i, column by column), so
     n^2 k^2 128 / 2 multiply-adds in all (100 photos, k = 256: about 80 GFLOP). The two nearest per
     row and per column come from one compiled pass over the block (_two_smallest_numba), the photos
-    in threads, one per core. Before, every photo's product ran against all the others, and a
+    in `threads` threads (the run's workers: BLAS's products and the compiled pass let go of the
+    GIL). Before, every photo's product ran against all the others, and a
     partition per direction found the two nearest: 7.4 s on a hundred photos in the main process,
     the pool idle."""
     n = len(feats)
@@ -78,8 +78,7 @@ def shared_features(feats: list[Features], n_features: int, ratio: float) -> np.
         if i < n - 1:
             dots = pad[i] @ flat_t[:, (i + 1) * k:]                   # (k of i, (n - i - 1) k of the others)
             _two_smallest_kernel(dots, valid[i], valid[i + 1:], k, r2, count[i, i + 1:], count[i + 1:, i])
-    # a thread per core (at most 8): BLAS's products and the compiled pass let go of the GIL
-    with ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 8))) as pool:
+    with ThreadPoolExecutor(max(1, threads)) as pool:
         list(pool.map(block, range(n)))
     return np.minimum(count, count.T)
 

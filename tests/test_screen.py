@@ -60,7 +60,7 @@ def test_shared_features_equal_their_definition_with_photos_of_fewer_keypoints()
     feats[4] = Features(few.xy[:30], few.size[:30], few.desc[:30], few.response[:30])
     feats[7] = Features(few.xy[:1], few.size[:1], few.desc[:1], few.response[:1])
     for k in (50, 1000):
-        got = shared_features(feats, k, 0.8)
+        got = shared_features(feats, k, 0.8, threads=2)
         assert np.array_equal(got, _counts_by_definition(feats, k, 0.8))
         assert got.sum() > 0
 
