@@ -264,7 +264,9 @@ def _map(keypoints, sizes, links, p: GeometryParams, prior: np.ndarray, focal_gu
     Photos without an EXIF prior start at `focal_guess` x the longer side."""
     import pycolmap
 
-    pycolmap.logging.minloglevel = int(os.environ.get("CROWDCAM_COLMAP_LOG", 2))   # not for our users
+    # COLMAP's log is not for our users: FATAL only (3), as its ERROR lines ("Failed to create any
+    # sparse model") reached the terminal beside our own one-line warning of the same thing
+    pycolmap.logging.minloglevel = int(os.environ.get("CROWDCAM_COLMAP_LOG", 3))
     with tempfile.TemporaryDirectory(prefix="crowdcam-sfm-") as tmp:
         db_path = os.path.join(tmp, "database.db")
         db = pycolmap.Database.open(db_path)

@@ -107,6 +107,24 @@ def test_three_cameras_are_not_enough_to_be_trusted(tmp_path):
     assert res3.cameras.n_registered == 3
 
 
+def test_a_failed_mapping_says_nothing_on_the_terminal(capfd, monkeypatch):
+    """Matches from which no model can be made: _map returns no model, and COLMAP's own log line
+    ("Failed to create any sparse model", written by its C++ code to the process's stderr) does not
+    reach the user; run.py says it in one line of ours."""
+    from pipeline.params import get_preset
+    from pipeline.reconstruction import _map
+    monkeypatch.delenv("CROWDCAM_COLMAP_LOG", raising=False)
+    rng = np.random.default_rng(0)
+    keypoints = [rng.uniform(0, 300, (200, 2)).astype(np.float32) for _ in range(4)]
+    links = [(i, j, np.column_stack([np.arange(100), rng.permutation(200)[:100]]), False)
+             for i in range(4) for j in range(i + 1, 4)]
+    rec, _, n_models = _map(keypoints, [(240, 320)] * 4, links, get_preset("default").geometry, np.full(4, np.nan),
+                            1.0)
+    assert rec is None and n_models == 0
+    err = capfd.readouterr().err
+    assert "sparse model" not in err and err.strip() == ""
+
+
 def test_colmap_export_reads_back(recon_run, tmp_path):
     import pycolmap
 
