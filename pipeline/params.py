@@ -74,6 +74,12 @@ class GeometryParams:
                                        # spread. False: such pairs stay rejected (their matches cannot check F
                                        # off that plane or patch): F precision up (arc 89 -> 100 %), but
                                        # detection down where they were useful supports (README "Checks")
+    recon_over_two_view: bool = False  # a pair of registered photos whose cameras' lines are too uncertain by the
+                                       # estimate, but whose own two-view F passed with certain lines: the
+                                       # cameras' F all the same where it fits the pair's matches (median <=
+                                       # recon_agree_px); not swept (uncertain lines). Ours (README "Checks"):
+                                       # the estimate is cautious, and a two-view F is free off its matches'
+                                       # planes (plaza: 2 of 7 such pairs 12-22 px off at the 90th percentile)
 
 
 @dataclass(frozen=True)
@@ -260,7 +266,7 @@ SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "min_
                 "calib_centre", "weight")
 
 # GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
-POST_GEOMETRY = ("two_view_max_uncertainty_frac",)
+POST_GEOMETRY = ("two_view_max_uncertainty_frac", "recon_over_two_view")
 
 
 SECTIONS = tuple(f.name for f in dataclasses.fields(Params) if f.default_factory is not dataclasses.MISSING)
@@ -301,7 +307,7 @@ PRESETS: dict[str, Params] = {
     "default": Params(
         preset="default",
         geometry=GeometryParams(homography_pairs=True, triplet_check=True, reconstruction=True,
-                                two_view_max_uncertainty_frac=0.025),
+                                two_view_max_uncertainty_frac=0.025, recon_over_two_view=True),
         patches=PatchParams(homography_reach_frac=0.1, swept_fans=1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,

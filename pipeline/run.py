@@ -735,17 +735,18 @@ def assemble(photo_set: PhotoSet, params: Params, pairs: dict, supports: list[li
 
 def _sweepable(ij: tuple[int, int], g: PairGeometry, cameras: SetCameras | None, params: Params,
                size: tuple[int, int]) -> bool:
-    """The preset sweeps depths and the pair's geometry comes from the set's cameras (a
-    reconstruction pair, or a homography pair of two registered photos whose lines are certain)."""
+    """The preset sweeps depths and the pair's geometry comes from the set's cameras with certain
+    lines (a reconstruction pair within the uncertainty limit or not estimated, or a homography
+    pair of two registered photos within it)."""
     i, j = ij
     if not (params.sweep.enabled and cameras is not None and cameras.registered[i] and cameras.registered[j]
             and np.all(np.isfinite(cameras.depth_range[i]))):
         return False
-    if g.source == "reconstruction":
-        return True
     unc = cameras.pair_unc[i, j]
-    return g.source == "homography" and bool(np.isfinite(unc)) and \
-        unc <= params.geometry.recon_max_uncertainty_frac * max(size)
+    certain = bool(np.isfinite(unc)) and unc <= params.geometry.recon_max_uncertainty_frac * max(size)
+    if g.source == "reconstruction":       # uncertain only where it took over a two-view F (recon_over_two_view)
+        return certain or not np.isfinite(unc)
+    return g.source == "homography" and certain
 
 
 def _digest_arrays(*arrays) -> str:

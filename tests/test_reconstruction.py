@@ -210,6 +210,46 @@ def test_a_planar_pair_is_rescued_only_when_the_setting_says_so(recon_run):
     assert all(kept[ij].source == rescued[ij].source for ij in pairs if ij not in ((i, j), (j, i)))
 
 
+def test_uncertain_camera_lines_replace_a_two_view_f_only_where_they_fit_its_matches(recon_run):
+    """A pair of registered photos whose cameras' lines are uncertain by the estimate (above
+    recon_max_uncertainty_frac) but whose own two-view F passed: the cameras' F is taken where it
+    fits the pair's matches and the two-view lines are certain themselves; the pair is then not
+    swept (uncertain lines). Elsewhere, and with the setting off, the two-view F stays."""
+    from pipeline.params import get_preset
+    from pipeline.reconstruction import apply_reconstruction
+    from pipeline.run import _sweepable
+    from pipeline.support import OK
+    ps, res = recon_run
+    i, j = next((i, j) for (i, j), g in sorted(res.pairs.items()) if i < j and g.source == "reconstruction")
+    sizes = [p.size for p in ps.photos]
+    params = get_preset("default").replace(max_side=320)
+    geometry = params.geometry
+    unc = np.array(res.cameras.pair_unc)
+    unc[i, j] = unc[j, i] = 3 * geometry.recon_max_uncertainty_frac * max(sizes[i])
+    cams = dataclasses.replace(res.cameras, pair_unc=unc)
+
+    def with_pair(g):
+        pairs = dict(res.pairs)
+        pairs[(i, j)], pairs[(j, i)] = g, g.reversed()
+        return pairs
+    two_view = dataclasses.replace(res.pairs[(i, j)], status=OK, source="two-view", uncertainty_px=2.0)
+    taken = apply_reconstruction(with_pair(two_view), cams, sizes, res.keypoints, geometry)[(i, j)]
+    assert taken.source == "reconstruction" and taken.ok and taken.uncertainty_px == unc[i, j]
+    assert np.allclose(taken.F, cams.F(i, j))
+    assert not _sweepable((i, j), taken, cams, params, sizes[i])
+    assert _sweepable((i, j), res.pairs[(i, j)], res.cameras, params, sizes[i])     # certain lines: swept
+    off = apply_reconstruction(with_pair(two_view), cams, sizes, res.keypoints,
+                               dataclasses.replace(geometry, recon_over_two_view=False))[(i, j)]
+    assert off.source == "two-view" and np.array_equal(off.F, two_view.F)
+    loose = dataclasses.replace(two_view, uncertainty_px=1.1 * geometry.two_view_max_uncertainty_frac * max(sizes[i]))
+    assert apply_reconstruction(with_pair(loose), cams, sizes, res.keypoints, geometry)[(i, j)].source == "two-view"
+    # matches 6 px off the cameras' lines (each support point moved along its epipolar line's normal)
+    lines = cams.F(i, j) @ np.column_stack([two_view.inliers_ref, np.ones(len(two_view.inliers_ref))]).T
+    normal = (lines[:2] / np.linalg.norm(lines[:2], axis=0)).T
+    off_lines = dataclasses.replace(two_view, inliers_sup=(two_view.inliers_sup + 6.0 * normal).astype(np.float32))
+    assert apply_reconstruction(with_pair(off_lines), cams, sizes, res.keypoints, geometry)[(i, j)].source == "two-view"
+
+
 @pytest.mark.parametrize("scale", [1e-5, 1e-30])
 def test_line_uncertainty_is_the_spread_of_lines_of_poses_drawn_from_the_covariance(scale):
     """line_uncertainty (poses drawn at once, lines in one compiled pass) equals drawing the poses
