@@ -75,7 +75,8 @@ class GeometryParams:
                                        # off that plane or patch): F precision up (arc 89 -> 100 %), but
                                        # detection down where they were useful supports (README "Checks")
     recon_over_two_view: bool = False  # a pair of registered photos whose cameras' lines are too uncertain by the
-                                       # estimate, but whose own two-view F passed with certain lines: the
+                                       # estimate, but whose own two-view F passed with certain lines (within
+                                       # two_view_max_uncertainty_frac; nothing without that gate): the
                                        # cameras' F all the same where it fits the pair's matches (median <=
                                        # recon_agree_px); not swept (uncertain lines). Ours (README "Checks"):
                                        # the estimate is cautious, and a two-view F is free off its matches'

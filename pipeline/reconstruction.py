@@ -539,6 +539,24 @@ def _with_depth_ranges(cams: SetCameras) -> SetCameras:
     return dataclasses.replace(cams, depth_range=rng)
 
 
+def _fits_matches(F: np.ndarray, g, max_px: float) -> bool:
+    """F (3, 3) fits the pair's own verified matches: their median symmetric epipolar distance is
+    at most max_px (a two-view pair's inliers, PairGeometry)."""
+    if g.inliers_ref is None or len(g.inliers_ref) == 0:
+        return False
+    return bool(np.median(symmetric_epipolar_distance(F, g.inliers_ref, g.inliers_sup)) <= max_px)
+
+
+def _takes_over(F: np.ndarray, g, side: int, p: GeometryParams) -> bool:
+    """recon_over_two_view: the cameras' F (3, 3) replaces pair g's passing two-view F although the
+    cameras' lines are too uncertain by the estimate, because it fits the pair's own matches and the
+    two-view lines are certain themselves (within the gate's limit, two_view_max_uncertainty_frac x
+    the image side `side`; without that gate, never: every passing pair took in arc's wrong cameras)."""
+    limit = p.two_view_max_uncertainty_frac * side
+    return bool(p.recon_over_two_view and g.ok and limit > 0 and g.uncertainty_px <= limit
+                and _fits_matches(F, g, p.recon_agree_px))
+
+
 def _check(cams: SetCameras, pairs: dict, sizes, p: GeometryParams, n_models: int) -> SetCameras:
     """Unregister the photos whose camera the photos themselves contradict (see module doc)."""
     n = len(cams.registered)
@@ -750,9 +768,8 @@ def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[n
             elif not baseline > p.recon_min_baseline * depth:
                 why = (f"no baseline: the cameras are {baseline / depth:.1%} of the scene depth apart, and no "
                        "homography explains the pair")
-            elif unc > p.recon_max_uncertainty_frac * max(sizes[i]) and not (
-                    g.ok and p.recon_over_two_view and g.uncertainty_px <= p.two_view_max_uncertainty_frac * max(sizes[i])
-                    and _fits_matches(cams.F(i, j), g, p.recon_agree_px)):
+            elif unc > p.recon_max_uncertainty_frac * max(sizes[i]) and not _takes_over(cams.F(i, j), g,
+                                                                                         max(sizes[i]), p):
                 why = f"epipolar lines too uncertain ({unc:.1f} px)"
             elif not g.ok and not p.recon_rescue_planar and (g.homography_share > p.max_homography_share
                                                               or 0.0 < g.spread < p.min_spread):
@@ -781,15 +798,6 @@ def apply_reconstruction(pairs: dict, cams: SetCameras, sizes, keypoints: list[n
             out[(i, j)] = new
             out[(j, i)] = new.reversed()
     return out
-
-
-
-def _fits_matches(F: np.ndarray, g, max_px: float) -> bool:
-    """F (3, 3) fits the pair's own verified matches: their median symmetric epipolar distance is
-    at most max_px (a two-view pair's inliers, PairGeometry)."""
-    if g.inliers_ref is None or len(g.inliers_ref) == 0:
-        return False
-    return bool(np.median(symmetric_epipolar_distance(F, g.inliers_ref, g.inliers_sup)) <= max_px)
 
 
 # ----------------------------------------------------------------------------- export
