@@ -434,7 +434,10 @@ def cmd_calibrate(args) -> int:
     result = calibrate([Path(d) for d in args.sets], args.render, Path(args.out), params, _cache(args),
                        args.workers, rep.progress)
     rep.close()
-    print(json.dumps({k: result[k] for k in ("calib_scale", "calib_offset", "best_mean_jaccard")}))
+    fo = result["final_offset"]
+    print(json.dumps({"calib_scale": result["calib_scale"], "calib_offset": result["calib_offset"],
+                      "mean_jaccard_opt_per_set": round(fo["mean_jaccard_opt_per_set"], 4),
+                      "best_threshold": fo["best_threshold"]}))
     for r in result["reliability"]:
         share = "–" if r["moving_share"] is None else f"{r['moving_share']:.2f}"
         print(f"P_dynamic {r['p_from']:.1f}-{r['p_to']:.1f}: {r['pixels']:>9} px, moving {share}")

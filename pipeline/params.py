@@ -312,7 +312,7 @@ PRESETS: dict[str, Params] = {
         patches=PatchParams(homography_reach_frac=0.1, swept_fans=1),
         descriptors=DescriptorParams(color_normalise=True, hist_smooth=True),
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
-                                  calib_scale=1.544, calib_offset=-0.65,
+                                  calib_scale=1.641, calib_offset=-0.4,
                                   plane_weight=0.6, plane_dynamic_cap=0.5, splat_step=2),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_px=8.0,
                           smooth_p2=4.0, two_supports_agree=True),

@@ -199,7 +199,14 @@ class SetResult:
             return self.refine_dynamic(i, dynamic_from_differences([self.pair_results[(i, j)].diff for j in supports]), p)
         if not p.sweep.enabled:
             return self.refine_dynamic(i, combine([self.match_prob(i, j, p) for j in supports], p.aggregate), p)
-        z = self.static_log_odds(i, supports, p)
+        return self.dynamic_from_static(i, supports, self.static_log_odds(i, supports, p), p)
+
+    def dynamic_from_static(self, i: int, supports: list[int], z: np.ndarray, params: Params | None = None
+                            ) -> np.ndarray:
+        """P_dynamic (h, w) float32 of photo i from its static log-odds z (static_log_odds): the
+        calibration, the refinement and the plane-aligned difference (`crowdcam calibrate` asks for
+        the final map at several offsets without making z again)."""
+        p = params or self.params
         a = p.aggregate
         dyn = dynamic_from_log_odds(a.calib_scale * (z - a.calib_offset * self.sweep_seen(i, supports, p)))
         # a point no support speaks about is no evidence, never motion (EVIDENCE_NOTES point 7)
