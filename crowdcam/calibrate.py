@@ -75,7 +75,8 @@ def collect(set_dirs: list[Path], params, cache, workers=None, progress=None):
 
 
 def fit(samples) -> dict:
-    """z0 (best mean-Jaccard threshold on z), s (logistic slope) and the reliability curve."""
+    """s (logistic slope on z), the offset (final_offset, searched around z0, the best mean-Jaccard
+    threshold on z alone) and the final maps' reliability curve at them."""
     grid = np.linspace(-12, 12, 481)
     by_set: dict[str, list] = {}
     for z, moving, care, name, _ in samples:
@@ -96,17 +97,17 @@ def fit(samples) -> dict:
         H = (X * (p * (1 - p))[:, None]).T @ X + 1e-6 * np.eye(2)
         wgt -= np.linalg.solve(H, X.T @ (p - ys))
     s = float(-wgt[1])
-    final = final_offset(samples, s, z0)
+    chosen = final_offset(samples, s, z0)
     # reliability of the final map at that offset (what a user sees: after the refinement and the
     # plane-aligned difference), pooled over every calibration photo's pixels with ground truth
-    prob = np.concatenate([f(s, final["offset"])[care][::5] for _, _, care, _, f in samples]).astype(np.float64)
+    prob = np.concatenate([f(s, chosen["offset"])[care][::5] for _, _, care, _, f in samples]).astype(np.float64)
     bins = np.linspace(0, 1, 11)
     idx = np.clip(np.digitize(prob, bins) - 1, 0, 9)
     rel = [{"p_from": float(bins[k]), "p_to": float(bins[k + 1]), "pixels": int((idx == k).sum()),
             "moving_share": float(ys[idx == k].mean()) if (idx == k).any() else None} for k in range(10)]
-    return {"calib_offset": final["offset"], "calib_scale": round(s, 3), "best_mean_jaccard": float(mean.max()),
+    return {"calib_offset": chosen["offset"], "calib_scale": round(s, 3), "best_mean_jaccard": float(mean.max()),
             "best_z": best_z, "mean_jaccard_at_offset": float(mean[int(np.argmin(np.abs(grid - z0)))]),
-            "final_offset": final, "sets": sorted(by_set), "reliability": rel}
+            "final_offset": chosen, "sets": sorted(by_set), "reliability": rel}
 
 
 def final_offset(samples, scale: float, z0: float, span: float = 1.0, step: float = 0.05) -> dict:
