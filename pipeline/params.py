@@ -131,7 +131,8 @@ class AggregateParams:
     refine_radius_frac: float = 0.0    # paper: none; default: guided filter radius / working max side
     refine_eps: float = 0.01           # guided filter regularisation (intensity variance units)
     # Calibration of the summed static log-odds z (with the sweep): P_dynamic = 1 / (1 + e^(scale (z - offset))).
-    # crowdcam calibrate fits them on rendered sets that are not bundled (the best threshold then sits near 0.5).
+    # crowdcam calibrate fits them on rendered sets that are not bundled: the scale on z, the offset where
+    # the final maps (refined, with the plane-aligned difference) score best (calibrate.final_offset).
     calib_scale: float = 1.0
     calib_offset: float = 0.0
     mean_terms: bool = False           # paper: Eq. 3 sums the supports' log-odds; True: their mean per pixel
