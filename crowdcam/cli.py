@@ -49,7 +49,7 @@ class Reporter:
         if stage != self._stage:
             self.close()
             self._stage = stage
-            self._bar = tqdm(total=total, desc=f"{stage:>9}", unit={"features": "img", "screen": "set", "cameras": "run", "maps": "img"}.get(stage, "pair"),
+            self._bar = tqdm(total=total, desc=f"{stage:>9}", unit={"features": "img", "screen": "set", "cameras": "step", "maps": "img"}.get(stage, "pair"),
                              file=sys.stderr, leave=False, dynamic_ncols=True)
         self._bar.n = done
         self._bar.refresh()

@@ -34,7 +34,7 @@ from .memory import keep_freed_memory
 from .params import Params
 from .photometric import normalise_to_reference
 from .refine import refine
-from .reconstruction import SetCameras, apply_reconstruction, ground_plane, map_task, reconstruct
+from .reconstruction import SetCameras, apply_reconstruction, ground_plane, reconstruct
 from .store import PairStore, light_of
 from .screen import screen_pairs, shared_features
 from .support import (PairGeometry, cap_supports, estimate_pair, not_compared, support_sets, triplet_check,
@@ -766,8 +766,8 @@ def _digest_arrays(*arrays) -> str:
     return h.hexdigest()[:24]
 
 
-def _task_map(k: int, *task) -> tuple[int, tuple]:
-    return k, map_task(*task)
+def _task_numbered(k: int, fn: Callable, *task) -> tuple[int, object]:
+    return k, fn(*task)
 
 
 def set_cameras(photo_set: PhotoSet, params: Params, pairs: dict, keypoints: list[np.ndarray],
@@ -783,18 +783,20 @@ def set_cameras(photo_set: PhotoSet, params: Params, pairs: dict, keypoints: lis
         return cams
     prior = np.array([p.focal_prior_px if p.focal_prior_px else np.nan for p in photos], float)
 
-    def run_maps(tasks: list[tuple], arrived: Callable[[int, tuple], None]) -> None:
-        done = [0]
-        progress("cameras", 0, len(tasks))
+    steps = [0]              # the two-view halves, then the mapping runs
 
-        def got(res):           # here, in the main process, while the other run goes on
+    def run_tasks(fn: Callable, tasks: list[tuple], arrived: Callable[[int, object], None]) -> None:
+        total = 2 * len(params.geometry.recon_focal_guesses)
+        progress("cameras", steps[0], total)
+
+        def got(res):           # here, in the main process, while the other task goes on
             arrived(*res)
-            done[0] += 1
-            progress("cameras", done[0], len(tasks))
-        runner.map(_task_map, [(n, *t) for n, t in enumerate(tasks)], got,
+            steps[0] += 1
+            progress("cameras", steps[0], total)
+        runner.map(_task_numbered, [(n, fn, *t) for n, t in enumerate(tasks)], got,
                    label=lambda a: f"the reconstruction of {photo_set.root}")
     cams = reconstruct(keypoints, [p.size for p in photos], pairs, [p.rgb for p in photos], params.geometry, prior,
-                       run_maps=run_maps if runner is not None else None)
+                       run_tasks=run_tasks if runner is not None else None)
     cache.put("cameras", k, cache_mod.to_bytes(cams))
     return cams
 

@@ -107,19 +107,42 @@ def test_three_cameras_are_not_enough_to_be_trusted(tmp_path):
     assert res3.cameras.n_registered == 3
 
 
+def test_two_view_geometry_does_not_depend_on_the_initial_focal_length(recon_run):
+    """Both mapping runs read one set of COLMAP two-view geometries (made once, not once per run):
+    sound because they are the same from either run's initial focal length, with or without an
+    EXIF prior on one photo of a pair."""
+    from pipeline.params import get_preset
+    from pipeline.reconstruction import _input_pairs, two_view_task
+    ps, res = recon_run
+    n = len(ps.photos)
+    p = get_preset("default").geometry
+    links = _input_pairs(res.pairs, n, p.recon_min_matches)
+    assert len(links) >= 6
+    sizes = [ph.size for ph in ps.photos]
+    for prior in (np.full(n, np.nan), np.r_[1.1 * max(sizes[0]), np.full(n - 1, np.nan)]):
+        a, b = (two_view_task(res.keypoints, sizes, links, prior, guess) for guess in p.recon_focal_guesses)
+        for ga, gb in zip(a, b):
+            assert ga.config == gb.config and np.array_equal(ga.inlier_matches, gb.inlier_matches)
+            assert (ga.cam2_from_cam1 is None) == (gb.cam2_from_cam1 is None)
+            if ga.cam2_from_cam1 is not None:
+                assert np.array_equal(ga.cam2_from_cam1.matrix(), gb.cam2_from_cam1.matrix())
+        assert sum(len(g.inlier_matches) > 0 for g in a) >= 6
+
+
 def test_a_failed_mapping_says_nothing_on_the_terminal(capfd, monkeypatch):
     """Matches from which no model can be made: _map returns no model, and COLMAP's own log line
     ("Failed to create any sparse model", written by its C++ code to the process's stderr) does not
     reach the user; run.py says it in one line of ours."""
     from pipeline.params import get_preset
-    from pipeline.reconstruction import _map
+    from pipeline.reconstruction import _map, two_view_task
     monkeypatch.delenv("CROWDCAM_COLMAP_LOG", raising=False)
     rng = np.random.default_rng(0)
     keypoints = [rng.uniform(0, 300, (200, 2)).astype(np.float32) for _ in range(4)]
     links = [(i, j, np.column_stack([np.arange(100), rng.permutation(200)[:100]]), False)
              for i in range(4) for j in range(i + 1, 4)]
-    rec, _, n_models = _map(keypoints, [(240, 320)] * 4, links, get_preset("default").geometry, np.full(4, np.nan),
-                            1.0)
+    sizes, prior = [(240, 320)] * 4, np.full(4, np.nan)
+    two_view = two_view_task(keypoints, sizes, links, prior, 1.0)
+    rec, _, n_models = _map(keypoints, sizes, links, two_view, get_preset("default").geometry, prior, 1.0)
     assert rec is None and n_models == 0
     err = capfd.readouterr().err
     assert "sparse model" not in err and err.strip() == ""
