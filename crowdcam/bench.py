@@ -1,12 +1,17 @@
 """`crowdcam bench`: time and score sets, each preset in a fresh process for honest cold figures.
 
 Per set and preset: images, ordered pairs, cold wall seconds (empty cache, including worker
-start-up), seconds per ordered pair, warm seconds (everything from the cache), peak resident
-memory (main process and largest worker), the Jaccard (optimised per image and per set) when the
-set has ground truth, the share of static pixels above 0.5, and, for the generator's synthetic
-sets (with cameras.json), the precision of the admitted epipolar pairs' F against the true cameras
-(crowdcam/truth.py): share of pairs with median error < 2 px / pairs with 90th percentile > 10 px /
-median of the pairs' medians in px.
+start-up), seconds per ordered pair (the whole cold run's, and the pairs' stage's alone), warm
+seconds (everything from the cache), peak resident memory (main process and largest worker), the
+Jaccard (optimised per image and per set) when the set has ground truth, the share of static
+pixels above 0.5, and, for the generator's synthetic sets (with cameras.json), the precision of
+the admitted epipolar pairs' F against the true cameras (crowdcam/truth.py): share of pairs with
+median error < 2 px / pairs with 90th percentile > 10 px / median of the pairs' medians in px.
+
+With --dask N, the same child then runs the set again, cold with its own cache, on a Dask
+LocalCluster of N worker processes (one thread each; started before the clock, as a cluster a user
+starts with `dask worker` would be), and reports its wall time against the pool's and the largest
+difference between the two runs' maps (the README's target: 0, and at most 1.3x the pool's time).
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ import time
 from pathlib import Path
 
 
-def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q, settings: tuple = ()) -> None:
+def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q, settings: tuple = (),
+               max_supports: int | None = None, dask_workers: int = 0) -> None:
     try:
         from pipeline.cache import PairCache
         from pipeline.evaluate import score_set, static_false_positive_rate
@@ -34,17 +40,21 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q,
             cache = PairCache(Path(tmp))
             t0 = time.perf_counter()
             ps = load_set(Path(set_dir), params.max_side)
-            res = detect_set(ps, params, cache, workers=workers)
+            res = detect_set(ps, params, cache, workers=workers, max_supports=max_supports)
             cold = time.perf_counter() - t0
             t1 = time.perf_counter()
             ps2 = load_set(Path(set_dir), params.max_side)
-            detect_set(ps2, params, cache, workers=workers)
+            detect_set(ps2, params, cache, workers=workers, max_supports=max_supports)
             warm = time.perf_counter() - t1
+        n_pairs = len(res.pair_results)
         row = {"set": ps.name, "preset": preset, "settings": list(settings), "images": len(ps.photos),
-               "ordered_pairs": len(res.pair_results),
+               "max_supports": max_supports, "ordered_pairs": n_pairs,
                "rejected_pairs": sum(not g.ok for (i, j), g in res.pairs.items() if i < j),
-               "cold_s": cold, "s_per_pair": cold / max(1, len(res.pair_results)), "warm_s": warm,
-               "timings": res.timings}
+               "cold_s": cold, "s_per_pair": cold / max(1, n_pairs),
+               # the pairs' stage alone per pair: what a pair costs, without the set's fixed costs
+               # (features, geometry, cameras, worker start-up, the maps)
+               "pair_stage_s_per_pair": res.timings.get("pairs_s", 0.0) / max(1, n_pairs),
+               "warm_s": warm, "timings": res.timings}
         probs = {p.stem: to_original(d, p) for p, d in zip(ps.photos, res.dynamic) if d is not None}
         gts = {k: g for k, g in load_gts(ps).items() if k in probs}
         if gts:
@@ -57,9 +67,39 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q,
         row["peak_mb_worker"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         # After the memory peaks: rendering the truth is the bench's work, not the method's.
         row.update(_f_precision(res))
+        if dask_workers:
+            row["dask"] = _dask_run(set_dir, params, res, cold, dask_workers, max_supports)
         q.put(row)
     except Exception as e:       # reported as a row, the bench goes on
         q.put({"set": Path(set_dir).name, "preset": preset, "error": f"{type(e).__name__}: {e}"})
+
+
+def _dask_run(set_dir: str, params, pool_res, pool_cold: float, n_workers: int, max_supports: int | None) -> dict:
+    """The set once more, cold (a cache of its own), on a LocalCluster of n_workers processes:
+    its wall time (the cluster started beforehand), the cluster's start, and the largest absolute
+    difference between its maps and the pool run's (pool_res)."""
+    import numpy as np
+    from distributed import LocalCluster
+
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.run import detect_set
+
+    t0 = time.perf_counter()
+    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        started = time.perf_counter() - t0
+        with tempfile.TemporaryDirectory(prefix="crowdcam-bench-dask-") as tmp:
+            t1 = time.perf_counter()
+            ps = load_set(Path(set_dir), params.max_side)
+            res = detect_set(ps, params, PairCache(Path(tmp)), scheduler=cluster.scheduler_address,
+                             max_supports=max_supports)
+            cold = time.perf_counter() - t1
+    same_maps = all((a is None) == (b is None) for a, b in zip(pool_res.dynamic, res.dynamic))
+    diffs = [float(np.abs(a - b).max()) for a, b in zip(pool_res.dynamic, res.dynamic)
+             if a is not None and b is not None]
+    return {"workers": n_workers, "cold_s": cold, "cluster_start_s": started, "vs_pool": cold / pool_cold,
+            "same_photos_mapped": same_maps, "max_abs_diff": max(diffs, default=0.0),
+            "timings": res.timings}
 
 
 def _f_precision(res) -> dict:
@@ -80,20 +120,26 @@ def _f_cell(fp: dict | None) -> str:
 
 
 def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int | None, out: Path,
-              quiet: bool = False, settings: list[str] = ()) -> int:
+              quiet: bool = False, settings: list[str] = (), max_supports: int | None = None,
+              dask_workers: int = 0) -> int:
     from pipeline.cache import atomic_write_bytes
 
     ctx = mp.get_context("spawn")
     rows = []
-    head = (f"{'set':<20} {'preset':<15} {'imgs':>4} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'warm s':>7} "
-            f"{'peak MB':>9} {'J img':>11} {'J set':>11} {'thr':>5} {'static>0.5':>10} {'F <2px/p90>10/med':>17}")
+    head = (f"{'set':<20} {'preset':<15} {'imgs':>4} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'pair s':>7} "
+            f"{'warm s':>7} {'peak MB':>9} {'J img':>11} {'J set':>11} {'thr':>5} {'static>0.5':>10} "
+            f"{'F <2px/p90>10/med':>17}")
     if settings:
         print("settings changed from the presets:", " ".join(settings))
+    if max_supports is not None:
+        print(f"supports per photo: at most {max_supports}" if max_supports else "supports per photo: no cap")
+    print("s/pair: cold seconds / ordered pairs, end to end; pair s: the pairs' stage alone / ordered pairs")
     print(head)
     for s in sets:
         for preset in presets:
             q = ctx.Queue()
-            p = ctx.Process(target=_bench_one, args=(str(s), preset, max_side, workers, q, tuple(settings)))
+            p = ctx.Process(target=_bench_one, args=(str(s), preset, max_side, workers, q, tuple(settings),
+                                                     max_supports, dask_workers))
             p.start()
             row = q.get()
             p.join()
@@ -106,13 +152,20 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
             js = f"{row['jaccard_opt_set']:.2f}±{row['jaccard_opt_set_std']:.2f}" if row.get("has_motion") else "-"
             thr = f"{row['best_threshold']:.2f}" if row.get("has_motion") else "-"
             print(f"{row['set']:<20} {preset:<15} {row['images']:>4} {row['ordered_pairs']:>5} {row['cold_s']:>7.1f} "
-                  f"{row['s_per_pair']:>7.2f} {row['warm_s']:>7.2f} "
+                  f"{row['s_per_pair']:>7.2f} {row['pair_stage_s_per_pair']:>7.3f} {row['warm_s']:>7.2f} "
                   f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} {thr:>5} "
                   f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
             fp = row.get("f_precision")
             if fp and (fp["share_median_below_2px"] not in (None, 1.0) or fp["n_p90_above_10px"]):
                 print(f"{'':<20} F by source: " + "; ".join(f"{src} {_f_cell(v)} of {v['n_measured']}"
                                                          for src, v in fp["by_source"].items()))
+            dk = row.get("dask")
+            if dk:
+                procs = f"{dk['workers']} worker process{'es' if dk['workers'] > 1 else ''}"
+                print(f"{'':<20} Dask, LocalCluster of {procs}: cold {dk['cold_s']:.1f} s "
+                      f"({dk['vs_pool']:.2f}x the pool), cluster start {dk['cluster_start_s']:.1f} s, "
+                      f"maps max |difference| {dk['max_abs_diff']:g}"
+                      + ("" if dk["same_photos_mapped"] else ", NOT the same photos mapped"))
             if row.get("f_precision_note"):
                 print(f"{'':<20} F precision not measured: {row['f_precision_note']}")
             sys.stdout.flush()

@@ -407,7 +407,12 @@ def cmd_bench(args) -> int:
         except ValueError as e:
             raise CliError(str(e)) from None
     out = Path(args.json) if args.json else Path.cwd() / "crowdcam-out" / "bench.json"
-    return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet, settings=args.param or [])
+    if args.max_supports is not None and args.max_supports < 0:
+        raise CliError(f"--max-supports must be 0 (no cap) or more (got {args.max_supports})")
+    if args.dask is not None and args.dask < 1:
+        raise CliError(f"--dask {args.dask}: give the number of worker processes (1 or more)")
+    return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet, settings=args.param or [],
+                     max_supports=args.max_supports, dask_workers=args.dask or 0)
 
 
 def cmd_make_samples(args) -> int:
@@ -536,6 +541,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quiet", action="store_true")
     b.add_argument("--param", action="append", metavar="SECTION.FIELD=VALUE",
                    help="change one setting of every preset run (repeatable), e.g. sweep.min_agree=2")
+    b.add_argument("--max-supports", type=int, default=None, metavar="K",
+                   help="at most K supports per photo (as crowdcam detect; default: 8 for sets of more than 9 "
+                        "photos, no cap below; 0: no cap)")
+    b.add_argument("--dask", type=int, default=None, metavar="N",
+                   help="also run each set cold on a local Dask cluster of N worker processes: its time "
+                        "against the pool's, and the largest difference of the maps")
     b.add_argument("--ui", action="store_true",
                    help="measure the inspector's main-view update and tour-step latency instead (uses the cache)")
     b.add_argument("--tour-rounds", type=int, default=3,

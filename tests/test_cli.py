@@ -368,3 +368,20 @@ def test_inspect_bad_input_gives_one_line_error(args, expect):
     r = run_cli("inspect", *args)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and expect in r.stderr and "Traceback" not in r.stderr
+
+
+def test_bench_caps_the_supports_and_compares_dask_with_the_pool(tmp_path):
+    out = tmp_path / "bench.json"
+    r = run_cli("bench", SET, "--preset", "paper", "--max-side", 160, "--max-supports", 1, "--dask", 1,
+                "--json", out, "--quiet")
+    assert r.returncode == 0, r.stdout + r.stderr
+    row = json.loads(out.read_text())["rows"][0]
+    assert row["max_supports"] == 1 and 0 < row["ordered_pairs"] <= row["images"]   # one support a photo at most
+    assert 0 < row["pair_stage_s_per_pair"] <= row["s_per_pair"]
+    dask = row["dask"]
+    assert dask["workers"] == 1 and dask["same_photos_mapped"] and dask["max_abs_diff"] == 0
+    assert "Dask, LocalCluster of 1 worker process:" in r.stdout
+    for bad, expect in ((("--dask", 0), "--dask 0"), (("--max-supports", -1), "--max-supports must be")):
+        b = run_cli("bench", SET, *bad, "--json", tmp_path / "no.json")
+        assert b.returncode == 2 and expect in b.stderr and "Traceback" not in b.stderr, b.stderr
+        assert not (tmp_path / "no.json").exists()
