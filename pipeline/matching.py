@@ -321,7 +321,8 @@ def _splat_numba():
                 x = (ix + 0.5) * sx - 0.5
                 dx, dy = x - ex, y - ey
                 theta = math.atan2(dy, dx)
-                rel = (theta - theta_lo) % two_pi
+                rel = theta - theta_lo        # in [-2 pi, 2 pi]: theta_lo is an angle of atan2, or 0
+                rel = rel + two_pi if rel < 0.0 else (rel - two_pi if rel >= two_pi else rel)   # = rel % two_pi
                 w_all = w_cand = s_hog = s_col = 0.0
                 for f in range(n_fans):
                     k = int(math.floor(rel / dtheta - f / n_fans + o))
