@@ -161,8 +161,10 @@ def _strip_numba():
                 ori = a * scale - 0.5
                 b0f = math.floor(ori)
                 frac = ori - b0f
-                b0 = int(b0f) % hog_bins
-                b1 = (b0 + 1) % hog_bins
+                # ori lies in [-0.5, hog_bins - 0.5): the wrap is one compare, not an integer division
+                b0 = int(b0f)
+                b0 = b0 + hog_bins if b0 < 0 else b0
+                b1 = 0 if b0 + 1 == hog_bins else b0 + 1
                 c = cell_of_row[r]
                 cell[c, b0] += mag * (1.0 - frac)
                 cell[c, b1] += mag * frac
