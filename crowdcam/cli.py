@@ -99,6 +99,12 @@ def _cache(args, rep=None):
                      max_bytes=None if gb is None else int(gb * 2**30), warn=rep.warn if rep is not None else None)
 
 
+def _check_max_supports(k: int | None) -> None:
+    """`--max-supports` of detect and bench: None (the default cap), 0 (no cap) or a positive K."""
+    if k is not None and k < 0:
+        raise CliError(f"--max-supports must be 0 (no cap) or more (got {k})")
+
+
 def _table_row(name: str, score) -> str:
     return (f"{name:<20} {score.n_images:>3} images  Jaccard opt. per image {score.mean_opt_image:.2f} ± "
             f"{score.std_opt_image:.2f}   opt. per set {score.mean_opt_set:.2f} ± {score.std_opt_set:.2f} "
@@ -128,8 +134,7 @@ def cmd_detect(args) -> int:
     rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, "
              f"max side {params.max_side}")
     t0 = time.perf_counter()
-    if args.max_supports is not None and args.max_supports < 0:
-        raise CliError(f"--max-supports must be 0 (no cap) or more (got {args.max_supports})")
+    _check_max_supports(args.max_supports)
     res = detect_set(photo_set, params, _cache(args, rep), workers=args.workers, progress=rep.progress, warn=rep.warn,
                      max_supports=args.max_supports, scheduler=args.scheduler)
     rep.close()
@@ -407,8 +412,7 @@ def cmd_bench(args) -> int:
         except ValueError as e:
             raise CliError(str(e)) from None
     out = Path(args.json) if args.json else Path.cwd() / "crowdcam-out" / "bench.json"
-    if args.max_supports is not None and args.max_supports < 0:
-        raise CliError(f"--max-supports must be 0 (no cap) or more (got {args.max_supports})")
+    _check_max_supports(args.max_supports)
     if args.dask is not None and args.dask < 1:
         raise CliError(f"--dask {args.dask}: give the number of worker processes (1 or more)")
     return run_bench(sets, presets, args.max_side, args.workers, out, quiet=args.quiet, settings=args.param or [],

@@ -138,7 +138,7 @@ def _strip_numba():
                 gc = gx[r, t] * across[t, 0] + gy[r, t] * across[t, 1]
                 mag = math.sqrt(ga * ga + gc * gc)
                 # unsigned orientation atan2(gc, ga) mod pi, within 2e-8 rad (tests/test_descriptors.py):
-                # libm's atan2 took 25 ns a sample, most of this pass. Folded to the upper half-plane,
+                # libm's atan2 took 25 ns a sample, 40 % of this pass. Folded to the upper half-plane,
                 # the angle to the nearer axis is atan(mn / mx), and above tan(pi / 8) atan(u) =
                 # pi / 4 + atan((u - 1) / (u + 1)): one division, then atan's series to u^15 on
                 # |u| <= tan(pi / 8) (remainder below u^17 / 17 < 2e-8), selects without branches
