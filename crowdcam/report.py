@@ -25,7 +25,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.gallery import FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, Gallery, GalleryEntry, build_gallery, gt_at
+from pipeline.gallery import (CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, Gallery, GalleryEntry,
+                              build_gallery, cue_summary, gt_at)
 
 # colours (RGB) of the pictures, one language with the inspector: turbo-like heat, white mask outline
 C_MISSED = (255, 0, 255)        # magenta: moving, not found
@@ -246,6 +247,13 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
         trs.append("<tr>" + "".join(f"<td>{_md_inline_to_html(c)}</td>" for c in cells) + "</tr>")
     body.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" + "".join(trs) +
                 "</table>")
+    cue_rows = [c for i in galleries if ps.photos[i].stem in gts
+                and (c := cue_summary(res, i, gts[ps.photos[i].stem])) is not None]
+    if cue_rows:
+        md_c, html_c = _cue_table(cue_rows)
+        md += [""] + md_c
+        body += html_c
+        data["cues"] = [c.to_dict() for c in cue_rows]
     skipped = [ph.stem for k, ph in enumerate(ps.photos) if k not in galleries]
     if skipped:
         line = f"No map (no usable support): {', '.join(skipped)}."
@@ -314,6 +322,26 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
     (stage / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     (stage / "report.html").write_text(_html_page(title, "\n".join(body)), encoding="utf-8")
     (stage / "report.json").write_text(json.dumps(data, indent=1, default=_json_default), encoding="utf-8")
+
+
+CUE_INTRO = ("What each cue says: its median static log-odds over the photo's moving pixels and over its "
+             "static ones (ground truth; positive reads static, negative moving; – where the map has no such "
+             "cue), then the map's median P_dynamic over each. A cue that separates them is much lower on the "
+             "movers than on the static pixels.")
+
+
+def _cue_table(rows) -> tuple[list[str], list[str]]:
+    """The cues' table (pipeline.gallery.cue_summary per photo) as markdown lines and HTML parts."""
+    head = ["photo"] + [f"{CUE_TITLE[c]}: moving / static" for c in CUES] + ["P_dynamic: moving / static"]
+    f = lambda v, nd=2: "–" if not np.isfinite(v) else f"{v:+.{nd}f}"
+    cells = [[r.stem] + [f"{f(r.moving[c])} / {f(r.static[c])}" for c in CUES] +
+             ["{:.2f} / {:.3f}".format(*r.dynamic)] for r in rows]
+    md = [CUE_INTRO, "", "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)] + \
+        ["| " + " | ".join(c) + " |" for c in cells]
+    page = [f"<p>{html.escape(CUE_INTRO)}</p>",
+            "<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" +
+            "".join("<tr>" + "".join(f"<td>{html.escape(x)}</td>" for x in c) + "</tr>" for c in cells) + "</table>"]
+    return md, page
 
 
 def _json_default(o):

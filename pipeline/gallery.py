@@ -661,3 +661,57 @@ def build_gallery(res, i: int, gt: np.ndarray | None = None, threshold: float | 
             explain = {stems.index(ev.supports[s]) for s in order} if r.kind != FALSE_ALARM else set()
             return probe_strips(res, i, r, explain=explain)
     return gallery_from_evidence(ev, max_per_kind, probe)
+
+
+# ----------------------------------------------------------------------------- cues per photo
+CUES = ("strips", "depth", "plane")
+CUE_TITLE = {"strips": "strips (Eq. 3)", "depth": "depth cue", "plane": "plane-aligned difference"}
+
+
+@dataclass(frozen=True)
+class CueSummary:
+    """What each cue of a photo's map says about its moving and its static pixels (ground truth):
+    per cue, the median static log-odds over the moving pixels and over the static ones, so that
+    positive reads "static" and negative "moving" (NaN: the map has no such cue, or the cue speaks
+    about none of those pixels); `dynamic` the medians of the final P_dynamic. A cue that separates
+    them is far lower on the movers than on the static pixels; one that fails is not."""
+
+    stem: str
+    moving: dict[str, float]          # cue -> median over the moving pixels
+    static: dict[str, float]          # cue -> median over the static pixels
+    dynamic: tuple[float, float]      # median P_dynamic over the moving, over the static pixels
+    n_moving: int
+    n_static: int
+
+    def to_dict(self) -> dict:
+        r = lambda v: None if not np.isfinite(v) else round(float(v), 3)
+        return {"stem": self.stem, "moving": {k: r(v) for k, v in self.moving.items()},
+                "static": {k: r(v) for k, v in self.static.items()},
+                "dynamic": [r(v) for v in self.dynamic], "n_moving": self.n_moving, "n_static": self.n_static}
+
+
+def cue_summary(res, i: int, gt: np.ndarray) -> CueSummary | None:
+    """The CueSummary of photo i of a run (SetResult) against its ground truth gt (any size, 0
+    static, 255 moving, 128 don't care); None when the photo has no map or no moving pixel, or
+    the run is the peer baseline (no cues)."""
+    p = res.params
+    dyn = res.dynamic[i]
+    if dyn is None or p.geometry.peer_homography or not res.supports[i]:
+        return None
+    g = gt_at(gt, dyn.shape)
+    moving, static = g == 255, g == 0
+    if not moving.any():
+        return None
+    s = res.supports[i]
+    # pixels a cue says nothing about (no support saw them: 0 log-odds) are left out of its medians
+    seen = res.has_evidence(i, s)
+    cues = {"strips": res.strips_log_odds(i, s),
+            "depth": res.sweep_log_odds(i, s) if p.sweep.enabled and p.sweep.weight > 0 else None,
+            "plane": res.plane_log_odds(i, s)}
+
+    def med(a, mask):
+        return float(np.median(a[mask & seen])) if a is not None and (mask & seen).any() else float("nan")
+    return CueSummary(res.photo_set.photos[i].stem, {k: med(v, moving) for k, v in cues.items()},
+                      {k: med(v, static) for k, v in cues.items()},
+                      (float(np.median(dyn[moving])), float(np.median(dyn[static])) if static.any() else float("nan")),
+                      int(moving.sum()), int(static.sum()))

@@ -148,6 +148,17 @@ class SetResult:
         every support (per-support strips, homography pairs) plus the depth-consistent cue of the
         swept ones (sweep_log_odds, weighted by `sweep.weight`). 0 is no evidence."""
         p = params or self.params
+        logit = self.strips_log_odds(i, supports, p)
+        sw = self.sweep_log_odds(i, supports, p) if p.sweep.weight > 0 else None
+        if sw is not None:
+            logit += p.sweep.weight * sw
+        return logit
+
+    def strips_log_odds(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray:
+        """The strips' part of static_log_odds, (h, w) float32: Eq. 3's term of every support
+        (per-support strips, homography pairs), a swept support's weighted by
+        `aggregate.swept_strips`, averaged over the supports with `aggregate.mean_terms`."""
+        p = params or self.params
         logit = np.zeros(self.photo_set.photos[i].size, np.float32)
         count = np.zeros(self.photo_set.photos[i].size, np.float32)
         for j in supports:
@@ -158,9 +169,6 @@ class SetResult:
             count += w * (self.pair_results[(i, j)].evidence > 0.05)
         if p.aggregate.mean_terms:       # per support: comparable across photos with few and many supports
             logit /= np.maximum(count, 1.0)
-        sw = self.sweep_log_odds(i, supports, p) if p.sweep.weight > 0 else None
-        if sw is not None:
-            logit += p.sweep.weight * sw
         return logit
 
     def plane_log_odds(self, i: int, supports: list[int], params: Params | None = None) -> np.ndarray | None:

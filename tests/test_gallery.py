@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, SAMPLE_SETS, project
-from pipeline.gallery import (FALSE_ALARM, MISSED, UNCERTAIN, ReferenceEvidence, diagnose, find_regions,
-                              gallery_from_evidence, strip_probe)
+from pipeline.gallery import (FALSE_ALARM, MISSED, UNCERTAIN, ReferenceEvidence, cue_summary, diagnose,
+                              find_regions, gallery_from_evidence, strip_probe)
+from pipeline.params import get_preset
 
 H, W, L = 60, 80, 24          # image size and patch length of the built cases
 
@@ -241,6 +242,55 @@ def test_gallery_keeps_the_first_k_of_each_kind():
     assert all(e.diagnoses for e in g.entries)
 
 
+# ----------------------------------------------------------------------------- cues per photo
+class _Run:
+    """A stand-in for run.SetResult with one photo whose cues are given arrays."""
+
+    def __init__(self, params, dynamic, strips, depth, plane, seen):
+        self.params, self.dynamic, self.supports = params, [dynamic], [[1]]
+        self.photo_set = type("PS", (), {"photos": [type("Ph", (), {"stem": "ref"})()]})()
+        self._cues, self._seen = (strips, depth, plane), seen
+
+    def has_evidence(self, i, s):
+        return self._seen
+
+    def strips_log_odds(self, i, s):
+        return self._cues[0]
+
+    def sweep_log_odds(self, i, s):
+        return self._cues[1]
+
+    def plane_log_odds(self, i, s):
+        return self._cues[2]
+
+
+def test_cue_summary_reads_each_cue_on_the_movers_and_the_static_pixels():
+    """Medians per cue over the moving and the static pixels, leaving out what no support saw
+    and the don't-care band; a cue the map does not have is NaN; no movers, or the peer
+    baseline (no cues), gives no summary."""
+    gt = np.zeros((H, W), np.uint8)
+    mover = square(10, 10, 20)
+    gt[mover] = 255
+    gt[square(40, 40, 10)] = 128                       # don't care: in neither median
+    strips = np.where(mover, 0.1, 0.5).astype(np.float32)
+    depth = np.where(mover, -1.5, 2.5).astype(np.float32)
+    depth[square(40, 40, 10)] = -9.0
+    seen = np.ones((H, W), bool)
+    seen[10:30, 10:15] = False                          # a quarter of the mover unseen (its log-odds 0)
+    depth[~seen] = 0.0
+    dyn = np.where(mover, 0.8, 0.05).astype(np.float32)
+    c = cue_summary(_Run(get_preset("default"), dyn, strips, depth, None, seen), 0, gt)
+    assert c.moving["strips"] == pytest.approx(0.1) and c.static["strips"] == pytest.approx(0.5)
+    assert c.moving["depth"] == pytest.approx(-1.5) and c.static["depth"] == pytest.approx(2.5)
+    assert np.isnan(c.moving["plane"]) and np.isnan(c.static["plane"])
+    assert c.dynamic == pytest.approx((0.8, 0.05)) and c.n_moving == 400 and c.n_static == H * W - 400 - 100
+    assert c.to_dict()["moving"]["plane"] is None and c.to_dict()["static"]["depth"] == 2.5
+    gt_2x = np.kron(gt, np.ones((2, 2), np.uint8))      # ground truth at the original size reads the same
+    assert cue_summary(_Run(get_preset("default"), dyn, strips, depth, None, seen), 0, gt_2x).to_dict() == c.to_dict()
+    assert cue_summary(_Run(get_preset("default"), dyn, strips, depth, None, seen), 0, np.zeros_like(gt)) is None
+    assert cue_summary(_Run(get_preset("peer-homography"), dyn, strips, depth, None, seen), 0, gt) is None
+
+
 # ----------------------------------------------------------------------------- crowdcam report
 def run_cli(*args):
     return subprocess.run([sys.executable, "-m", "crowdcam", *map(str, args)], capture_output=True, text=True,
@@ -270,6 +320,14 @@ def test_report_end_to_end(tmp_path):
         assert (out / src).is_file(), src
     assert not re.search(r"(src|href)=\"(https?:)?//", page)
     assert "missed mover" in md and "Jaccard" in md
+    # the cues' table: every photo with ground truth and a mover; on these renders the strips and
+    # the depth cue (where the photo has cameras) read lower on the movers than on the static pixels
+    assert "What each cue says" in md and "What each cue says" in page
+    cues = data["cues"]
+    assert len(cues) >= 5 and {c["stem"] for c in cues} <= {ref["stem"] for ref in data["references"]}
+    assert all(c["moving"]["strips"] < c["static"]["strips"] for c in cues)
+    with_depth = [c for c in cues if c["moving"]["depth"] is not None]
+    assert with_depth and all(c["moving"]["depth"] < c["static"]["depth"] for c in with_depth)
     assert not list(tmp_path.glob(".rep.*"))
     # again: every pair from the cache
     r2 = run_cli("report", SAMPLE_SETS / "tabletop_ball", "--out", out, "--max-side", 200, "--workers", 1)
