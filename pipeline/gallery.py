@@ -672,8 +672,8 @@ CUE_TITLE = {"strips": "strips (Eq. 3)", "depth": "depth cue", "plane": "plane-a
 class CueSummary:
     """What each cue of a photo's map says about its moving and its static pixels (ground truth):
     per cue, the median static log-odds over the moving pixels and over the static ones, so that
-    positive reads "static" and negative "moving" (NaN: the map has no such cue, or the cue speaks
-    about none of those pixels); `dynamic` the medians of the final P_dynamic. A cue that separates
+    positive reads "static" and negative "moving", over the pixels some support saw (NaN: the map
+    has no such cue, or no support saw those pixels); `dynamic` the medians of the final P_dynamic. A cue that separates
     them is far lower on the movers than on the static pixels; one that fails is not."""
 
     stem: str
@@ -703,7 +703,7 @@ def cue_summary(res, i: int, gt: np.ndarray) -> CueSummary | None:
     if not moving.any():
         return None
     s = res.supports[i]
-    # pixels a cue says nothing about (no support saw them: 0 log-odds) are left out of its medians
+    # pixels no support saw (every cue 0 there: no evidence) are left out of the medians
     seen = res.has_evidence(i, s)
     cues = {"strips": res.strips_log_odds(i, s),
             "depth": res.sweep_log_odds(i, s) if p.sweep.enabled and p.sweep.weight > 0 else None,
