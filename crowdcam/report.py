@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from pipeline.gallery import (CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, Gallery, GalleryEntry,
-                              build_gallery, cue_summary, gt_at)
+                              build_gallery, cue_summary, gt_at, signed)
 
 # colours (RGB) of the pictures, one language with the inspector: turbo-like heat, white mask outline
 C_MISSED = (255, 0, 255)        # magenta: moving, not found
@@ -333,8 +333,7 @@ CUE_INTRO = ("What each cue says: its median static log-odds over the photo's mo
 def _cue_table(rows) -> tuple[list[str], list[str]]:
     """The cues' table (pipeline.gallery.cue_summary per photo) as markdown lines and HTML parts."""
     head = ["photo"] + [f"{CUE_TITLE[c]}: moving / static" for c in CUES] + ["P_dynamic: moving / static"]
-    f = lambda v, nd=2: "–" if not np.isfinite(v) else f"{v:+.{nd}f}"
-    cells = [[r.stem] + [f"{f(r.moving[c])} / {f(r.static[c])}" for c in CUES] +
+    cells = [[r.stem] + [f"{signed(r.moving[c])} / {signed(r.static[c])}" for c in CUES] +
              ["{:.2f} / {:.3f}".format(*r.dynamic)] for r in rows]
     md = [CUE_INTRO, "", "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)] + \
         ["| " + " | ".join(c) + " |" for c in cells]

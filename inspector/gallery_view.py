@@ -5,6 +5,8 @@ For the shown reference it lists the ranked regions of `pipeline.gallery.build_g
 same function `crowdcam report` calls: with ground truth the missed movers (M) and the static
 regions lit up (F), without it the most uncertain regions (U); each with its area, its crop
 (photo and map, from crowdcam/report.py's `crop_picture`) and its diagnoses, strongest first.
+With ground truth, a table above the entries says what each cue of the map says about the
+reference's movers and its static pixels (`pipeline.gallery.cue_summary`, the report's table).
 An entry's button explains its pixel exactly as a click on the photo does (the session's own
 pixel path), and what the Pixel tab then shows of that pixel (the verdict, each support's vote,
 the fusion table with every support's P(x|I_s), the best candidates' similarities and each
@@ -29,7 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.gallery import FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, Gallery, build_gallery
+from pipeline.gallery import (CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, CueSummary, Gallery,
+                              build_gallery, cue_summary, signed)
 
 from . import compose, render
 
@@ -67,6 +70,17 @@ def entry_markdown(e) -> str:
     return "\n".join(lines)
 
 
+def cue_markdown(c: CueSummary) -> str:
+    """The reference's cues against its ground truth (pipeline.gallery.cue_summary), as the
+    report's table has them, one row per cue."""
+    rows = [f"| {CUE_TITLE[k]} | {signed(c.moving[k])} | {signed(c.static[k])} |" for k in CUES]
+    return ("**What each cue says here**: its median static log-odds over the ground truth's movers and over "
+            "its static pixels (positive reads static, negative moving; – where the map has no such cue). A cue "
+            "that separates them is much lower on the movers.\n\n"
+            "| cue | movers | static pixels |\n| --- | --- | --- |\n" + "\n".join(rows) +
+            f"\n| P_dynamic (the map) | {c.dynamic[0]:.2f} | {c.dynamic[1]:.3f} |")
+
+
 @dataclass(frozen=True)
 class Slot:
     """One entry's widgets: its button, diagnoses and crop; under them, once it is opened, its
@@ -97,6 +111,7 @@ class GalleryView:
         self.s = session
         self.key: tuple | None = None
         self.gallery: Gallery | None = None
+        self.cues: CueSummary | None = None   # what each cue says about the shown reference (ground truth)
         self.opened: tuple | None = None    # (key, entry index, pixel) of the entry last opened
         self.compute_ms: list[float] = []
         self._want: tuple | None = None     # the state the tab shows now
@@ -104,6 +119,7 @@ class GalleryView:
         gui = session.client.gui
         with session.panel.add_tab("Gallery"):
             self.md_head = gui.add_markdown(f"Failure gallery: {COMPUTING}")
+            self.md_cues = gui.add_markdown("", visible=False)     # with ground truth: cue_markdown
             self.md_explained = gui.add_markdown("")
             self.slots: list[Slot] = []
             for k in range(SLOTS):
@@ -158,7 +174,8 @@ class GalleryView:
         self.draw.stop()
 
     def _hide_entries(self) -> None:
-        self.gallery, self.key = None, None
+        self.gallery, self.key, self.cues = None, None, None
+        self.md_cues.visible = False
         self._hide_evidence()
         for slot in self.slots:
             slot.btn.visible = slot.md.visible = slot.img.visible = False
@@ -201,6 +218,7 @@ class GalleryView:
         from pipeline.matching import patch_length
         rgb = app.photo_set.photos[ref].rgb
         dyn = snap.dynamic_prob(ref, done)
+        cues = cue_summary(snap, ref, gt, done, dyn) if gt is not None else None
         pad = 2 * patch_length(snap.params)
         pictures = [crop_picture(rgb, dyn, threshold, e, pad, CROP_SIDE) for e in gallery.entries[:SLOTS]]
         ms = 1000 * (time.perf_counter() - t0)
@@ -210,6 +228,9 @@ class GalleryView:
             self.gallery, self.key = gallery, want
             self.compute_ms = (self.compute_ms + [ms])[-50:]
             self.md_head.content = self._head(gallery, stem)
+            self.cues = cues
+            self.md_cues.content = cue_markdown(cues) if cues is not None else ""
+            self.md_cues.visible = cues is not None
             self._hide_evidence()                               # the entries may be others now
             self.md_explained.content = ""
             for k, slot in enumerate(self.slots):

@@ -690,19 +690,28 @@ class CueSummary:
                 "dynamic": [r(v) for v in self.dynamic], "n_moving": self.n_moving, "n_static": self.n_static}
 
 
-def cue_summary(res, i: int, gt: np.ndarray) -> CueSummary | None:
+def signed(v: float) -> str:
+    """A log-odds for the cues' tables: '+0.31', '-1.20', '0.00' (no '-0.00'), '–' for NaN."""
+    if not np.isfinite(v):
+        return "–"
+    return "0.00" if abs(v) < 0.005 else f"{v:+.2f}"
+
+
+def cue_summary(res, i: int, gt: np.ndarray, supports: list[int] | None = None,
+                dynamic: np.ndarray | None = None) -> CueSummary | None:
     """The CueSummary of photo i of a run (SetResult) against its ground truth gt (any size, 0
     static, 255 moving, 128 don't care); None when the photo has no map or no moving pixel, or
-    the run is the peer baseline (no cues)."""
+    the run is the peer baseline (no cues). supports and dynamic (h, w) float32: the cues of
+    these supports and this map instead of the run's (a viewer's map of the pairs done so far)."""
     p = res.params
-    dyn = res.dynamic[i]
-    if dyn is None or p.geometry.peer_homography or not res.supports[i]:
+    dyn = res.dynamic[i] if dynamic is None else dynamic
+    s = res.supports[i] if supports is None else list(supports)
+    if dyn is None or p.geometry.peer_homography or not s:
         return None
     g = gt_at(gt, dyn.shape)
     moving, static = g == 255, g == 0
     if not moving.any():
         return None
-    s = res.supports[i]
     # pixels no support saw (every cue 0 there: no evidence) are left out of the medians
     seen = res.has_evidence(i, s)
     cues = {"strips": res.strips_log_odds(i, s),

@@ -11,7 +11,7 @@ import pytest
 
 from conftest import ROOT, SAMPLE_SETS, project
 from pipeline.gallery import (FALSE_ALARM, MISSED, UNCERTAIN, ReferenceEvidence, cue_summary, diagnose,
-                              find_regions, gallery_from_evidence, strip_probe)
+                              find_regions, gallery_from_evidence, signed, strip_probe)
 from pipeline.params import get_preset
 
 H, W, L = 60, 80, 24          # image size and patch length of the built cases
@@ -289,6 +289,7 @@ def test_cue_summary_reads_each_cue_on_the_movers_and_the_static_pixels():
     assert cue_summary(_Run(get_preset("default"), dyn, strips, depth, None, seen), 0, gt_2x).to_dict() == c.to_dict()
     assert cue_summary(_Run(get_preset("default"), dyn, strips, depth, None, seen), 0, np.zeros_like(gt)) is None
     assert cue_summary(_Run(get_preset("peer-homography"), dyn, strips, depth, None, seen), 0, gt) is None
+    assert [signed(v) for v in (0.314, -1.2, -0.004, np.nan)] == ["+0.31", "-1.20", "0.00", "–"]
 
 
 # ----------------------------------------------------------------------------- crowdcam report

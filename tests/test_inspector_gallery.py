@@ -80,6 +80,10 @@ def test_gallery_entry_opens_its_explanation(browser, cache_dir):
 
         page.get_by_role("tab", name="Gallery").click()
         shown_text(page, f"Failure gallery of {stem}").first.wait_for(timeout=10_000)
+        # what each cue says about this reference against its ground truth, as the report's table
+        c = tab.gallery.cues
+        assert c is not None and c.stem == stem and c.n_moving > 0 and np.isfinite(c.moving["strips"])
+        shown_text(page, "What each cue says here", exact=False).first.wait_for(timeout=10_000)
         e = g.entries[0]
         btn = page.get_by_role("button", name=entry_label(e))
         btn.wait_for(timeout=10_000)
@@ -172,6 +176,7 @@ def test_gallery_without_ground_truth_lists_uncertain_regions(browser, cache_dir
         g = tab.gallery.gallery
         assert not g.has_gt
         assert all(e.region.kind == UNCERTAIN for e in g.entries)
+        assert tab.gallery.cues is None and not tab.gallery.md_cues.visible     # no ground truth: no cue table
         page.get_by_role("tab", name="Gallery").click()
         shown_text(page, "no ground truth", exact=False).first.wait_for(timeout=10_000)
         if g.entries:
