@@ -324,10 +324,11 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
     (stage / "report.json").write_text(json.dumps(data, indent=1, default=_json_default), encoding="utf-8")
 
 
-CUE_INTRO = ("What each cue says: its median static log-odds over the photo's moving pixels and over its "
-             "static ones (ground truth; positive reads static, negative moving; – where the map has no such "
-             "cue), then the map's median P_dynamic over each. A cue that separates them is much lower on the "
-             "movers than on the static pixels.")
+# what the cues' tables hold (the report's, and the inspector's Gallery tab's for one photo)
+CUE_INTRO = ("its median static log-odds over the photo's moving pixels and over its static ones (ground "
+             "truth; positive reads static, negative moving; – where the map has no such cue), then the map's "
+             "median P_dynamic over each. A cue that separates them is much lower on the movers than on the "
+             "static pixels.")
 
 
 def _cue_table(rows) -> tuple[list[str], list[str]]:
@@ -335,9 +336,10 @@ def _cue_table(rows) -> tuple[list[str], list[str]]:
     head = ["photo"] + [f"{CUE_TITLE[c]}: moving / static" for c in CUES] + ["P_dynamic: moving / static"]
     cells = [[r.stem] + [f"{signed(r.moving[c])} / {signed(r.static[c])}" for c in CUES] +
              ["{:.2f} / {:.3f}".format(*r.dynamic)] for r in rows]
-    md = [CUE_INTRO, "", "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)] + \
+    intro = f"What each cue says: {CUE_INTRO}"
+    md = [intro, "", "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)] + \
         ["| " + " | ".join(c) + " |" for c in cells]
-    page = [f"<p>{html.escape(CUE_INTRO)}</p>",
+    page = [f"<p>{html.escape(intro)}</p>",
             "<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" +
             "".join("<tr>" + "".join(f"<td>{html.escape(x)}</td>" for x in c) + "</tr>" for c in cells) + "</table>"]
     return md, page

@@ -73,10 +73,9 @@ def entry_markdown(e) -> str:
 def cue_markdown(c: CueSummary) -> str:
     """The reference's cues against its ground truth (pipeline.gallery.cue_summary), as the
     report's table has them, one row per cue."""
+    from crowdcam.report import CUE_INTRO
     rows = [f"| {CUE_TITLE[k]} | {signed(c.moving[k])} | {signed(c.static[k])} |" for k in CUES]
-    return ("**What each cue says here**: its median static log-odds over the ground truth's movers and over "
-            "its static pixels (positive reads static, negative moving; – where the map has no such cue). A cue "
-            "that separates them is much lower on the movers.\n\n"
+    return (f"**What each cue says here**: {CUE_INTRO}\n\n"
             "| cue | movers | static pixels |\n| --- | --- | --- |\n" + "\n".join(rows) +
             f"\n| P_dynamic (the map) | {c.dynamic[0]:.2f} | {c.dynamic[1]:.3f} |")
 
