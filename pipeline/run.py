@@ -378,7 +378,7 @@ def _channels(i: int):
 
 def _task_features(i: int) -> tuple[int, Features]:
     gp = _W["params"].geometry
-    return i, detect(_W["rgbs"][i], gp.sift_features, gp.sift_contrast)
+    return i, detect(_W["rgbs"][i], gp.sift_features, gp.sift_contrast, gp.affine_tilts)
 
 
 def _task_geometry(i: int, j: int, fi: Features | None = None, fj: Features | None = None
