@@ -44,7 +44,7 @@ def detect(rgb: np.ndarray, n_features: int, contrast: float = 0.04, affine_tilt
     kps, desc = sift.detectAndCompute(gray, None)
     if desc is None or len(kps) == 0:
         return Features(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros((0, 128), np.float32))
-    if len(kps) > n_features:
+    if affine_tilts > 0 and len(kps) > n_features:      # plain SIFT caps itself (ties included)
         strongest = np.argsort(-np.array([k.response for k in kps], np.float32), kind="stable")[:n_features]
         kps, desc = [kps[k] for k in strongest], desc[strongest]
     desc = desc / (np.abs(desc).sum(axis=1, keepdims=True) + 1e-7)
