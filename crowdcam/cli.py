@@ -339,7 +339,7 @@ def cmd_inspect(args) -> int:
     from inspector.app import Inspector
     try:
         app = Inspector(photo_set, gts, _cache(args, rep), out, host=args.host, port=args.port, preset=args.preset,
-                        max_side=params.max_side, workers=args.workers)
+                        max_side=params.max_side, workers=args.workers, changes=tuple(args.param or ()))
     except OSError as e:
         raise CliError(f"cannot serve on {args.host}:{args.port}: {e.strerror or e}") from None
     if args.host not in ("127.0.0.1", "localhost", "::1"):
@@ -528,6 +528,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="ground-truth masks <photo stem>.png (default: gt/ beside the photos or beside images/)")
     ins.add_argument("--out", default=None,
                      help="where 'Save to output folder' writes (default ./crowdcam-out/<set name>/inspector)")
+    ins.add_argument("--param", action="append", metavar="SECTION.FIELD=VALUE",
+                     help="change one setting of every preset the inspector runs (repeatable), e.g. "
+                          "geometry.affine_tilts=2 or aggregate.threshold=0.2 (the slider's start)")
     common(ins)
     ins.set_defaults(fn=cmd_inspect)
 

@@ -193,7 +193,7 @@ class Inspector:
 
     def __init__(self, photo_set: PhotoSet, gts: dict[str, np.ndarray], cache: PairCache, out_dir: Path,
                  host: str = "127.0.0.1", port: int = 8080, preset: str = "default", max_side: int = 640,
-                 workers: int | None = None, hold: threading.Event | None = None):
+                 workers: int | None = None, hold: threading.Event | None = None, changes: tuple[str, ...] = ()):
         limit_malloc_arenas()              # memory stays flat as tabs come and go (pipeline/memory.py)
         self.photo_set = photo_set
         self.hold = hold                                   # see SetModel.hold (tests only)
@@ -206,6 +206,7 @@ class Inspector:
         self.max_side = max_side
         self.workers = workers
         self.default_preset = preset
+        self.changes = tuple(changes)                      # --param settings, for every preset it runs
         self.terms = TermCache()
         self.models: dict[str, SetModel] = {}
         self.sessions: dict[int, Session] = {}
@@ -236,7 +237,7 @@ class Inspector:
         with self._lock:
             m = self.models.get(preset)
             if m is None:
-                m = SetModel(self.photo_set, preset, self.cache, self.max_side, self.workers, self.hold)
+                m = SetModel(self.photo_set, preset, self.cache, self.max_side, self.workers, self.hold, self.changes)
                 m.add_listener(self._model_changed)
                 self.models[preset] = m
                 m.start()
@@ -305,7 +306,7 @@ class Session:
         self.app = app
         self.client = client
         self.n = len(app.stems)
-        self.settings = Settings.for_preset(app.default_preset, 0, app.max_side)
+        self.settings = Settings.for_preset(app.default_preset, 0, app.max_side, app.changes)
         self.layers = render.Layers()
         self.unticked: dict[int, set[int]] = {}           # per reference: supports switched off
         self.ref_chosen = False                             # the user picked a reference
@@ -360,7 +361,8 @@ class Session:
         gui.main_panel.dock_right()
         gui.main_panel.set_width(MAIN_WIDTH)
         gui.add_html(PAGE_STYLE + KEYS_STAY_WITH_CONTROLS)
-        self.md_title = gui.add_markdown(f"**{ps.name}** · {self.n} photos · working size {app.max_side} px")
+        changed = f" · changed: {', '.join(f'`{c}`' for c in app.changes)}" if app.changes else ""
+        self.md_title = gui.add_markdown(f"**{ps.name}** · {self.n} photos · working size {app.max_side} px{changed}")
         self.progress = gui.add_progress_bar(0.0, animated=True)
         self.md_status = gui.add_markdown("Starting…")
         self.md_caption = gui.add_markdown(
@@ -577,7 +579,7 @@ class Session:
         preset = self.dd_preset.value
         if preset == self.settings.preset:
             return
-        fresh = Settings.for_preset(preset, self.settings.ref, self.app.max_side)
+        fresh = Settings.for_preset(preset, self.settings.ref, self.app.max_side, self.app.changes)
         with self._state_lock:
             self.settings = dataclasses.replace(fresh, supports=self.settings.supports)
         self._clear(keep_pixel=True)

@@ -49,22 +49,30 @@ class Settings:
     no_evidence: str = "neutral"
     refine: bool = True
     max_side: int = 640
+    changes: tuple[str, ...] = ()      # `crowdcam inspect --param` settings, applied to every preset
 
     @staticmethod
-    def for_preset(preset: str, ref: int = 0, max_side: int = 640) -> "Settings":
-        p = get_preset(preset)
+    def for_preset(preset: str, ref: int = 0, max_side: int = 640, changes: tuple[str, ...] = ()) -> "Settings":
+        p = preset_params(preset, max_side, changes)
         return Settings(preset, ref, (), p.aggregate.threshold, tuple(p.aggregate.remap), p.descriptors.w_hog,
-                        p.descriptors.w_color, p.aggregate.no_evidence, p.aggregate.refine_radius_frac > 0, max_side)
+                        p.descriptors.w_color, p.aggregate.no_evidence, p.aggregate.refine_radius_frac > 0, max_side,
+                        tuple(changes))
 
     def params(self) -> Params:
         """The preset with this tab's aggregation-level changes (pairs are not affected)."""
-        base = get_preset(self.preset).replace(max_side=self.max_side)
+        base = preset_params(self.preset, self.max_side, self.changes)
         radius = base.aggregate.refine_radius_frac or get_preset("default").aggregate.refine_radius_frac
         return base.replace(
             descriptors=dataclasses.replace(base.descriptors, w_hog=self.w_hog, w_color=self.w_color),
             aggregate=dataclasses.replace(base.aggregate, remap=tuple(self.remap), no_evidence=self.no_evidence,
                                           threshold=self.threshold,
                                           refine_radius_frac=radius if self.refine else 0.0))
+
+
+def preset_params(preset: str, max_side: int, changes: tuple[str, ...] = ()) -> Params:
+    """A preset at the working size, with `crowdcam inspect --param` changes ("SECTION.FIELD=VALUE";
+    Params.with_settings, which raises ValueError naming a bad one)."""
+    return get_preset(preset).replace(max_side=max_side).with_settings(list(changes))
 
 
 class SetModel:
@@ -76,12 +84,12 @@ class SetModel:
     """
 
     def __init__(self, photo_set: PhotoSet, preset: str, cache: PairCache, max_side: int = 640,
-                 workers: int | None = None, hold: threading.Event | None = None):
+                 workers: int | None = None, hold: threading.Event | None = None, changes: tuple[str, ...] = ()):
         self.photo_set = photo_set
         # A gate the run waits at once the support sets are known, before any pair is computed;
         # tests hold a run "still going" with it instead of racing it (None: no gate).
         self.hold = hold
-        self.params = get_preset(preset).replace(max_side=max_side)
+        self.params = preset_params(preset, max_side, changes)
         self.preset = preset
         self.cache = cache
         self.workers = workers

@@ -22,10 +22,9 @@ import cv2
 import numpy as np
 
 from pipeline.output import heat_overlay
-from pipeline.params import get_preset
 
 from . import render
-from .model import score
+from .model import preset_params, score
 
 PRESETS_SHOWN = ("paper", "default", "peer-homography")
 PANEL_WIDTH = 312                 # as the other pictures of the left panel
@@ -168,7 +167,7 @@ class PresetPanels:
         if entry is None:
             photo = app.photo_set.photos[ref]
             dyn = snap.dynamic_prob(ref, done)
-            t = float(get_preset(preset).aggregate.threshold)
+            t = float(preset_params(preset, app.max_side, app.changes).aggregate.threshold)
             base = heat_overlay(photo.rgb, dyn, dyn > t, 0.55)
             gtw = app.gts_working.get(app.stems[ref])
             if gtw is not None:

@@ -204,6 +204,9 @@ def test_a_setting_changed_by_name_reaches_the_run_and_its_summary(detected, tmp
     lines = [l for l in bad.stderr.splitlines() if l.startswith("crowdcam: error")]
     assert bad.returncode == 2 and len(lines) == 1 and "no field 'nope' in sweep" in lines[0], bad.stderr
     assert "Traceback" not in bad.stderr and not (tmp_path / "bad").exists()
+    bad = run_cli("inspect", SET, "--port", 0, "--param", "sweep.nope=1", cache=cache)       # before it serves
+    lines = [l for l in bad.stderr.splitlines() if l.startswith("crowdcam: error")]
+    assert bad.returncode == 2 and len(lines) == 1 and "no field 'nope' in sweep" in lines[0], bad.stderr
 
 
 def test_warnings_name_the_skipped_files(tmp_path):

@@ -65,6 +65,24 @@ def test_settings_of_a_preset_are_the_preset():
         assert Settings.for_preset(name, max_side=512).params() == get_preset(name).replace(max_side=512)
 
 
+def test_param_changes_reach_every_preset_the_inspector_runs(tmp_path):
+    """`crowdcam inspect --param`: the changes are in the tab's settings (the threshold slider starts
+    at the changed value), in its params and in the run's, whatever the preset; a bad one names itself."""
+    from inspector.model import SetModel, Settings, preset_params
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    changes = ("aggregate.threshold=0.2", "geometry.affine_tilts=1")
+    for name in ("paper", "default"):
+        s = Settings.for_preset(name, 0, 256, changes)
+        assert s.threshold == 0.2 and s.params().geometry.affine_tilts == 1
+        assert s.params() == preset_params(name, 256, changes) != Settings.for_preset(name, 0, 256).params()
+    model = SetModel(load_set(SAMPLE_SETS / "tabletop_ball", 256), "default", PairCache(tmp_path), 256,
+                     changes=changes)
+    assert model.params.geometry.affine_tilts == 1 and model.params.aggregate.threshold == 0.2
+    with pytest.raises(ValueError, match="nope"):
+        Settings.for_preset("default", 0, 256, ("sweep.nope=1",))
+
+
 def test_reaggregation_equals_the_pipeline(run):
     """The cached per-support terms give exactly Eq. 3 as SetResult computes it, for any subset of
     supports and any remap / weights / no-evidence choice."""
