@@ -399,7 +399,7 @@ def cmd_bench(args) -> int:
             raise CliError(f"{s}: no such folder")
     presets = args.preset or ["default"]
     if args.param and args.ui:
-        raise CliError("--param applies to the timed runs, not to --ui (the inspector runs its presets as they are)")
+        raise CliError("--param applies to the timed runs, not to --ui (it times the presets as they are)")
     if args.ui:
         from crowdcam.bench import print_ui_latency, ui_latency
         rows = [ui_latency(s, presets[0], args.max_side, tour_rounds=args.tour_rounds) for s in sets]
