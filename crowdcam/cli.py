@@ -150,10 +150,19 @@ def cmd_detect(args) -> int:
     live = None
     if args.rrd or args.rerun_web:
         extra["rerun_s"], live = _log_rerun(args, res, photo_set, threshold, gts, rep)
+    peaks = []                       # the strongest evidence of each photo whose mask is empty
     for p, d in zip(photo_set.photos, res.dynamic):
         if d is not None and not (d > threshold).any():
             rep.warn(f"{p.path}: no pixel above the threshold {threshold:g} (P_dynamic {float(d.min()):.2f}-"
                      f"{float(d.max()):.2f}); its mask is empty")
+            peaks.append(float(d.max()))
+    if len(peaks) > 1:
+        # once for the set: on real photos the maps understate movers (README: Limitations), and a
+        # user who sees only empty masks should know where the maps stand and what to change
+        rep.warn(f"{len(peaks)} of {sum(d is not None for d in res.dynamic)} masks are empty at {threshold:g}; "
+                 f"their maps peak at {min(peaks):.2f}-{max(peaks):.2f}. If the photos hold movers, a lower "
+                 f"--threshold (or the inspector's slider) marks them: on real photos the maps understate movers "
+                 f"(README: Limitations)")
     write_outputs(res, out, threshold, extra)
     if colmap_dir is not None:
         _export_colmap(res, colmap_dir, rep)

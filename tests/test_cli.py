@@ -209,6 +209,20 @@ def test_a_setting_changed_by_name_reaches_the_run_and_its_summary(detected, tmp
     assert bad.returncode == 2 and len(lines) == 1 and "no field 'nope' in sweep" in lines[0], bad.stderr
 
 
+def test_empty_masks_are_named_and_summed_up_once(detected, tmp_path):
+    """A threshold no pixel passes: each photo's warning gives its map's range, and one line for
+    the set says how many masks are empty and where the maps peak."""
+    _, cache, _, _ = detected
+    r = run_cli("detect", SET, "--out", tmp_path / "out", "--max-side", 320, "--threshold", 1.0, cache=cache)
+    assert r.returncode == 0, r.stderr
+    per_photo = [l for l in r.stderr.splitlines() if "no pixel above the threshold 1" in l]
+    summary = [l for l in r.stderr.splitlines() if "masks are empty at 1;" in l]
+    n = len(json.loads((tmp_path / "out" / "summary.json").read_text())["images"])
+    assert len(per_photo) > 1 and len(summary) == 1, r.stderr
+    assert f"{len(per_photo)} of " in summary[0] and "--threshold" in summary[0]
+    assert len(per_photo) <= n
+
+
 def test_warnings_name_the_skipped_files(tmp_path):
     d = tmp_path / "set"
     shutil.copytree(SET / "images", d)
