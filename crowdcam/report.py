@@ -125,16 +125,20 @@ def _safe(stem: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in stem)
 
 
-def explain_commands(set_arg: str, stem: str, xy: tuple[int, int], max_side: int, preset: str) -> list[str]:
+def explain_commands(set_arg: str, stem: str, xy: tuple[int, int], max_side: int, preset: str,
+                     changes: tuple[str, ...] = ()) -> list[str]:
     """Shell commands that explain a pixel: the inspector (pick the reference, click the pixel)
-    and a Rerun recording of that pixel's evidence (crowdcam detect --rr-ref --rr-pixel)."""
+    and a Rerun recording of that pixel's evidence (crowdcam detect --rr-ref --rr-pixel), with the
+    run's --param changes, so that they show the same maps."""
     opts = []
     if max_side != 640:
         opts += ["--max-side", str(max_side)]
     if preset != "default":
         opts += ["--preset", preset]
+    for c in changes:
+        opts += ["--param", c]
     q = shlex.quote
-    base = " ".join([q(set_arg)] + opts)
+    base = " ".join([q(set_arg)] + [q(o) for o in opts])
     return [f"crowdcam inspect {base}   # Reference {stem}, click pixel ({xy[0]}, {xy[1]})",
             f"crowdcam detect {base} --rr-ref {q(stem)} --rr-pixel {xy[0]},{xy[1]} --rrd {q(_safe(stem))}.rrd "
             f"&& crowdcam view {q(_safe(stem))}.rrd"]
@@ -162,14 +166,15 @@ def _entry_heading(e: GalleryEntry, scale: float) -> str:
 
 # ----------------------------------------------------------------------------- the report
 def write_report(res, galleries: dict[int, Gallery], gts: dict, out: Path, set_arg: str, threshold: float,
-                 seconds: dict, scores: dict) -> Path:
+                 seconds: dict, scores: dict, changes: tuple[str, ...] = ()) -> Path:
     """Write report.md, report.html, report.json and img/ into a staging folder beside `out` and
-    rename it into place (a previous report is replaced only when the new one is complete)."""
+    rename it into place (a previous report is replaced only when the new one is complete).
+    changes: the run's `--param` settings (named in the report and in its commands)."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     try:
-        _write_into(stage, res, galleries, gts, set_arg, threshold, seconds, scores)
+        _write_into(stage, res, galleries, gts, set_arg, threshold, seconds, scores, changes)
         if out.exists():
             trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
             os.replace(out, trash / "old")
@@ -183,7 +188,7 @@ def write_report(res, galleries: dict[int, Gallery], gts: dict, out: Path, set_a
     return out
 
 
-def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, scores) -> None:
+def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, scores, changes=()) -> None:
     from pipeline.evaluate import THRESHOLDS, jaccard_curve
     from pipeline.output import to_original
     ps, p = res.photo_set, res.params
@@ -200,11 +205,12 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
     md: list[str] = []
     body: list[str] = []
     data = {"set": ps.name, "input": str(Path(ps.root).resolve()), "preset": p.preset, "max_side": p.max_side,
-            "threshold": threshold, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": seconds,
+            "changes": list(changes), "threshold": threshold, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": seconds,
             "references": []}
     has_gt = any(g.has_gt for g in galleries.values())
     title = f"Failure gallery: {ps.name}"
-    intro = (f"Set `{ps.root}`, {len(ps.photos)} photos, preset `{p.preset}`, working size {p.max_side} px, "
+    changed = f" with {', '.join(f'`{c}`' for c in changes)}" if changes else ""
+    intro = (f"Set `{ps.root}`, {len(ps.photos)} photos, preset `{p.preset}`{changed}, working size {p.max_side} px, "
              f"threshold {threshold:g}. " +
              ("Per photo, the missed movers (M, magenta: moving in the ground truth, not in the mask) and the "
               "static regions lit up (F, orange: in the mask, static in the ground truth), ranked by area, each with a "
@@ -294,7 +300,7 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
             name = f"{safe}_{r.kind}{r.rank}.png"
             _write_image(stage / "img" / name, crop_picture(rgb, prob, threshold, e, pad))
             head3 = _entry_heading(e, photo.scale)
-            cmds = explain_commands(set_arg, stem, r.pixel, p.max_side, p.preset)
+            cmds = explain_commands(set_arg, stem, r.pixel, p.max_side, p.preset, changes)
             full = (round((r.pixel[0] + 0.5) / photo.scale - 0.5), round((r.pixel[1] + 0.5) / photo.scale - 0.5))
             where = (f"Pixel ({r.pixel[0]}, {r.pixel[1]}) at the working size, ({full[0]}, {full[1]}) in the original "
                      f"photo; box {r.bbox[0]},{r.bbox[1]}–{r.bbox[2]},{r.bbox[3]}.")
@@ -432,7 +438,7 @@ def cmd_report(args) -> int:
     t2 = time.perf_counter()
     seconds = {"detect_s": round(t1 - t0, 2), "gallery_s": round(t2 - t1, 2)}
     seconds["total_s"] = round(time.perf_counter() - t0, 2)     # without writing (a few seconds at most)
-    write_report(res, galleries, gts, out, str(args.set), threshold, seconds, scores)
+    write_report(res, galleries, gts, out, str(args.set), threshold, seconds, scores, tuple(args.param or ()))
     n = sum(len(g.entries) for g in galleries.values())
     rep.info(f"wrote {out / 'report.html'} and report.md ({n} regions from {len(galleries)} photos, "
              f"{time.perf_counter() - t0:.1f} s, {res.cache_hits} pairs cached)")
@@ -451,5 +457,7 @@ def add_parser(sub, common) -> None:
                    help="at most K regions of each kind per photo (default 5)")
     r.add_argument("--max-supports", type=int, default=None, metavar="K",
                    help="at most K supports per photo, as `crowdcam detect` (default: 8 for sets of more than 9 photos)")
+    r.add_argument("--param", action="append", metavar="SECTION.FIELD=VALUE",
+                   help="change one setting of the preset (repeatable), as `crowdcam detect`")
     common(r)
     r.set_defaults(fn=cmd_report)

@@ -330,11 +330,35 @@ def test_report_end_to_end(tmp_path):
     with_depth = [c for c in cues if c["moving"]["depth"] is not None]
     assert with_depth and all(c["moving"]["depth"] < c["static"]["depth"] for c in with_depth)
     assert not list(tmp_path.glob(".rep.*"))
-    # again: every pair from the cache
-    r2 = run_cli("report", SAMPLE_SETS / "tabletop_ball", "--out", out, "--max-side", 200, "--workers", 1)
+    # again, with a setting of the aggregation changed: every pair from the cache, and the report
+    # names the change and carries it into the commands that explain a pixel
+    r2 = run_cli("report", SAMPLE_SETS / "tabletop_ball", "--out", out, "--max-side", 200, "--workers", 1,
+                 "--param", "aggregate.threshold=0.4")
     assert r2.returncode == 0, r2.stderr
     assert int(re.search(r"(\d+) pairs cached", r2.stderr).group(1)) > 0
     assert "features:" not in r2.stderr and "geometry:" not in r2.stderr      # no progress bar: nothing computed
+    data2 = json.loads((out / "report.json").read_text())
+    assert data2["changes"] == ["aggregate.threshold=0.4"] and data2["threshold"] == 0.4
+    assert "`aggregate.threshold=0.4`" in (out / "report.md").read_text()
+    cmds = [c for ref in data2["references"] for e in ref["entries"] for c in e["commands"]]
+    assert cmds and all("--param aggregate.threshold=0.4" in c for c in cmds)
+
+
+def test_the_commands_that_explain_a_pixel_are_ones_the_cli_takes():
+    """explain_commands: the inspector and the Rerun recording with the run's size, preset and
+    --param changes, each a command line the CLI parses back to them."""
+    import shlex
+
+    from crowdcam.cli import build_parser
+    from crowdcam.report import explain_commands
+    cmds = explain_commands("my set", "cam 01", (12, 34), 320, "paper", ("geometry.affine_tilts=2",))
+    for cmd in cmds:
+        words = shlex.split(cmd.split("#")[0].split("&&")[0])
+        assert words[0] == "crowdcam"
+        args = build_parser().parse_args(words[1:])
+        assert (args.set, args.max_side, args.preset, args.param) == ("my set", 320, "paper",
+                                                                        ["geometry.affine_tilts=2"])
+    assert "--rr-ref 'cam 01' --rr-pixel 12,34" in cmds[1]
 
 
 def test_report_of_a_missing_set_is_one_line_and_writes_nothing(tmp_path):
