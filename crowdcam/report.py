@@ -205,8 +205,8 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
     md: list[str] = []
     body: list[str] = []
     data = {"set": ps.name, "input": str(Path(ps.root).resolve()), "preset": p.preset, "max_side": p.max_side,
-            "changes": list(changes), "threshold": threshold, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": seconds,
-            "references": []}
+            "changes": list(changes), "threshold": threshold, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "seconds": seconds, "references": []}
     has_gt = any(g.has_gt for g in galleries.values())
     title = f"Failure gallery: {ps.name}"
     changed = f" with {', '.join(f'`{c}`' for c in changes)}" if changes else ""
