@@ -25,8 +25,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.gallery import (CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, Gallery, GalleryEntry,
-                              build_gallery, cue_summary, gt_at, signed)
+from pipeline.gallery import (CUE_INTRO, CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, Gallery,
+                              GalleryEntry, build_gallery, cue_summary, gt_at, signed)
 
 # colours (RGB) of the pictures, one language with the inspector: turbo-like heat, white mask outline
 C_MISSED = (255, 0, 255)        # magenta: moving, not found
@@ -328,13 +328,6 @@ def _write_into(stage: Path, res, galleries, gts, set_arg, threshold, seconds, s
     (stage / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     (stage / "report.html").write_text(_html_page(title, "\n".join(body)), encoding="utf-8")
     (stage / "report.json").write_text(json.dumps(data, indent=1, default=_json_default), encoding="utf-8")
-
-
-# what the cues' tables hold (the report's, and the inspector's Gallery tab's for one photo)
-CUE_INTRO = ("its median static log-odds over the photo's moving pixels and over its static ones (ground "
-             "truth; positive reads static, negative moving; – where the map has no such cue), then the map's "
-             "median P_dynamic over each. A cue that separates them is much lower on the movers than on the "
-             "static pixels.")
 
 
 def _cue_table(rows) -> tuple[list[str], list[str]]:

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.gallery import (CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, CueSummary, Gallery,
-                              build_gallery, cue_summary, signed)
+from pipeline.gallery import (CUE_INTRO, CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, CueSummary,
+                              Gallery, build_gallery, cue_summary, signed)
 
 from . import compose, render
 
@@ -73,7 +73,6 @@ def entry_markdown(e) -> str:
 def cue_markdown(c: CueSummary) -> str:
     """The reference's cues against its ground truth (pipeline.gallery.cue_summary), as the
     report's table has them, one row per cue."""
-    from crowdcam.report import CUE_INTRO
     rows = [f"| {CUE_TITLE[k]} | {signed(c.moving[k])} | {signed(c.static[k])} |" for k in CUES]
     return (f"**What each cue says here**: {CUE_INTRO}\n\n"
             "| cue | movers | static pixels |\n| --- | --- | --- |\n" + "\n".join(rows) +

@@ -666,6 +666,11 @@ def build_gallery(res, i: int, gt: np.ndarray | None = None, threshold: float | 
 # ----------------------------------------------------------------------------- cues per photo
 CUES = ("strips", "depth", "plane")
 CUE_TITLE = {"strips": "strips (Eq. 3)", "depth": "depth cue", "plane": "plane-aligned difference"}
+# what the cues' tables hold (crowdcam report's, and the inspector's Gallery tab's for one photo)
+CUE_INTRO = ("its median static log-odds over the photo's moving pixels and over its static ones (ground "
+             "truth; positive reads static, negative moving; – where the map has no such cue), then the map's "
+             "median P_dynamic over each. A cue that separates them is much lower on the movers than on the "
+             "static pixels.")
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ class GeometryParams:
     sift_contrast: float = 0.02        # ours: SIFT contrast threshold (OpenCV default 0.04 finds too few
                                        # keypoints on low-contrast surfaces: half the pairs lacked matches)
     ratio: float = 0.8                 # Lowe's ratio test, applied both ways, mutual matches only
-    # features.detect: 0 plain SIFT (both presets); k > 0 affine-simulated SIFT with k tilts (ASIFT).
+    # features.detect: 0 plain SIFT (every preset); k > 0 affine-simulated SIFT with k tilts (ASIFT).
     # Measured, not a preset's (README "Affine-simulated features"): 2 tilts give every rendered set
     # but two F's right at 100 %, but admit wide pairs whose evidence lowers 6 of 11 sets' Jaccard.
     affine_tilts: int = 0
