@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from pipeline.params import DEFAULT_MAX_SIDE
+
 
 def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q, settings: tuple = (),
                max_supports: int | None = None, dask_workers: int = 0) -> None:
@@ -40,6 +42,7 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q,
             cache = PairCache(Path(tmp))
             t0 = time.perf_counter()
             ps = load_set(Path(set_dir), params.max_side)
+            params = params.for_working_side(ps.working_side)
             res = detect_set(ps, params, cache, workers=workers, max_supports=max_supports)
             cold = time.perf_counter() - t0
             t1 = time.perf_counter()
@@ -48,6 +51,7 @@ def _bench_one(set_dir: str, preset: str, max_side: int, workers: int | None, q,
             warm = time.perf_counter() - t1
         n_pairs = len(res.pair_results)
         row = {"set": ps.name, "preset": preset, "settings": list(settings), "images": len(ps.photos),
+               "working_side": params.max_side,
                "max_supports": max_supports, "ordered_pairs": n_pairs,
                "rejected_pairs": sum(not g.ok for (i, j), g in res.pairs.items() if i < j),
                "cold_s": cold, "s_per_pair": cold / max(1, n_pairs),
@@ -186,7 +190,7 @@ def _ms_summary(ms) -> dict:
             "n": int(len(ms))}
 
 
-def tour_latency(set_dir: Path, preset: str = "default", max_side: int = 640, rounds: int = 3,
+def tour_latency(set_dir: Path, preset: str = "default", max_side: int = DEFAULT_MAX_SIDE, rounds: int = 3,
                  cache_dir: Path | None = None, presenter: bool = True, timeout: float = 1800.0) -> dict:
     """Server-side time from "next" to the tour step's picture sent (composed, JPEG-encoded and
     queued onto the tab's socket), on a real inspector tab without a browser (inspector.headless):
@@ -259,7 +263,7 @@ def tour_latency(set_dir: Path, preset: str = "default", max_side: int = 640, ro
     return out
 
 
-def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repeats: int = 30,
+def ui_latency(set_dir: Path, preset: str = "default", max_side: int = DEFAULT_MAX_SIDE, repeats: int = 30,
                cache_dir: Path | None = None, tour_rounds: int = 3) -> dict:
     """Server-side time of the inspector's main-view update, as a tab sees it: re-aggregate from
     the cached per-support maps (model.TermCache, through the pipeline's Eq. 2/3 functions), the
@@ -282,8 +286,9 @@ def ui_latency(set_dir: Path, preset: str = "default", max_side: int = 640, repe
     from pipeline.params import get_preset
     from pipeline.run import detect_set
 
-    params = get_preset(preset).replace(max_side=max_side)
     ps = load_set(Path(set_dir), max_side)
+    max_side = min(max_side, ps.working_side)
+    params = get_preset(preset).replace(max_side=max_side)
     snap = detect_set(ps, params, PairCache(cache_dir or default_cache_dir()), workers=None)
     ref = first_reference(snap.supports)
     sups = tuple(snap.supports[ref])

@@ -56,7 +56,7 @@ def collect(set_dirs: list[Path], params, cache, workers=None, progress=None):
     from pipeline.run import detect_set
     out = []
     for d in set_dirs:
-        ps = load_set(d, params.max_side)
+        ps = load_set(d, params.max_side)      # rendered at 640: the limit leaves them as they are
         gts = load_gts(ps)
         res = detect_set(ps, params, cache, workers=workers, progress=progress)
         for i, p in enumerate(ps.photos):

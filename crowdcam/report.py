@@ -27,6 +27,7 @@ import numpy as np
 
 from pipeline.gallery import (CUE_INTRO, CUE_TITLE, CUES, FALSE_ALARM, KIND_TITLE, MISSED, UNCERTAIN, Gallery,
                               GalleryEntry, build_gallery, cue_summary, gt_at, signed)
+from pipeline.params import DEFAULT_MAX_SIDE
 
 # colours (RGB) of the pictures, one language with the inspector: turbo-like heat, white mask outline
 C_MISSED = (255, 0, 255)        # magenta: moving, not found
@@ -131,7 +132,7 @@ def explain_commands(set_arg: str, stem: str, xy: tuple[int, int], max_side: int
     and a Rerun recording of that pixel's evidence (crowdcam detect --rr-ref --rr-pixel), with the
     run's --param changes, so that they show the same maps."""
     opts = []
-    if max_side != 640:
+    if max_side != DEFAULT_MAX_SIDE:
         opts += ["--max-side", str(max_side)]
     if preset != "default":
         opts += ["--preset", preset]
@@ -411,10 +412,11 @@ def cmd_report(args) -> int:
         raise CliError(f"--max-entries must be 1 or more (got {args.max_entries})")
     set_dir = Path(args.set)
     photo_set = load_set(set_dir, params.max_side, warn=rep.warn, gt_dir=Path(args.gt) if args.gt else None)
+    params = params.for_working_side(photo_set.working_side)
     out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name / "report"
     if is_inside(out, set_dir):
         raise CliError(f"{out}: the output folder must not be inside the input folder {set_dir}")
-    rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, max side {params.max_side}")
+    rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, working size {params.max_side} px")
     res = detect_set(photo_set, params, _cache(args, rep), workers=args.workers, progress=rep.progress, warn=rep.warn,
                      max_supports=args.max_supports)
     rep.close()

@@ -44,7 +44,7 @@ from pipeline.cache import PairCache, atomic_write_bytes
 from pipeline.evaluate import THRESHOLDS
 from pipeline.loading import PhotoSet
 from pipeline.output import to_original
-from pipeline.params import PRESETS, get_preset
+from pipeline.params import DEFAULT_MAX_SIDE, PRESETS, get_preset
 
 from . import compose, render
 from . import geometry_view as gv
@@ -192,7 +192,7 @@ class Inspector:
     """The app: one photo set, served to any number of tabs."""
 
     def __init__(self, photo_set: PhotoSet, gts: dict[str, np.ndarray], cache: PairCache, out_dir: Path,
-                 host: str = "127.0.0.1", port: int = 8080, preset: str = "default", max_side: int = 640,
+                 host: str = "127.0.0.1", port: int = 8080, preset: str = "default", max_side: int = DEFAULT_MAX_SIDE,
                  workers: int | None = None, hold: threading.Event | None = None, changes: tuple[str, ...] = ()):
         limit_malloc_arenas()              # memory stays flat as tabs come and go (pipeline/memory.py)
         self.photo_set = photo_set
@@ -203,7 +203,7 @@ class Inspector:
         self.thumbs = Thumbnails([p.rgb for p in photo_set.photos], self.stems)     # the picker's, made once
         self.cache = cache
         self.out_dir = out_dir
-        self.max_side = max_side
+        self.max_side = min(max_side, photo_set.working_side)     # the size the set runs at (Params.for_working_side)
         self.workers = workers
         self.default_preset = preset
         self.changes = tuple(changes)                      # --param settings, for every preset it runs

@@ -26,7 +26,7 @@ from pipeline.cache import PairCache
 from pipeline.evaluate import jaccard, jaccard_curve, score_set, THRESHOLDS
 from pipeline.loading import InputError, PhotoSet
 from pipeline.output import to_original
-from pipeline.params import Params, get_preset
+from pipeline.params import DEFAULT_MAX_SIDE, Params, get_preset
 from pipeline.run import Cancelled, SetResult, assemble, detect_set
 
 
@@ -48,11 +48,11 @@ class Settings:
     w_color: float = 1.0
     no_evidence: str = "neutral"
     refine: bool = True
-    max_side: int = 640
+    max_side: int = DEFAULT_MAX_SIDE   # the working size the set runs at (PhotoSet.working_side at most)
     changes: tuple[str, ...] = ()      # `crowdcam inspect --param` settings, applied to every preset
 
     @staticmethod
-    def for_preset(preset: str, ref: int = 0, max_side: int = 640, changes: tuple[str, ...] = ()) -> "Settings":
+    def for_preset(preset: str, ref: int = 0, max_side: int = DEFAULT_MAX_SIDE, changes: tuple[str, ...] = ()) -> "Settings":
         p = preset_params(preset, max_side, changes)
         return Settings(preset, ref, (), p.aggregate.threshold, tuple(p.aggregate.remap), p.descriptors.w_hog,
                         p.descriptors.w_color, p.aggregate.no_evidence, p.aggregate.refine_radius_frac > 0, max_side,
@@ -71,8 +71,9 @@ class Settings:
 
 def preset_params(preset: str, max_side: int, changes: tuple[str, ...] = ()) -> Params:
     """A preset at the working size, with `crowdcam inspect --param` changes ("SECTION.FIELD=VALUE";
-    Params.with_settings, which raises ValueError naming a bad one)."""
-    return get_preset(preset).replace(max_side=max_side).with_settings(list(changes))
+    Params.with_settings, which raises ValueError naming a bad one). max_side is the size the set
+    runs at and wins over a change of it (the photos were loaded under that change already)."""
+    return get_preset(preset).with_settings(list(changes)).replace(max_side=max_side)
 
 
 class SetModel:
@@ -83,13 +84,13 @@ class SetModel:
     whenever something new is known.
     """
 
-    def __init__(self, photo_set: PhotoSet, preset: str, cache: PairCache, max_side: int = 640,
+    def __init__(self, photo_set: PhotoSet, preset: str, cache: PairCache, max_side: int = DEFAULT_MAX_SIDE,
                  workers: int | None = None, hold: threading.Event | None = None, changes: tuple[str, ...] = ()):
         self.photo_set = photo_set
         # A gate the run waits at once the support sets are known, before any pair is computed;
         # tests hold a run "still going" with it instead of racing it (None: no gate).
         self.hold = hold
-        self.params = preset_params(preset, max_side, changes)
+        self.params = preset_params(preset, min(max_side, photo_set.working_side), changes)
         self.preset = preset
         self.cache = cache
         self.workers = workers

@@ -15,6 +15,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .params import DEFAULT_MAX_SIDE
+
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp"}
 MAX_PIXELS = 120_000_000          # refuse larger photos (a 6000x4000 phone photo is 24 MP)
 MAX_FILE_BYTES = 400 * 1024 * 1024
@@ -59,6 +61,12 @@ class PhotoSet:
     photos: tuple[Photo, ...]
     gt_dir: Path | None
     warnings: tuple[str, ...] = ()
+
+    @property
+    def working_side(self) -> int:
+        """The longest side of any photo at working resolution (px): the max_side the set runs at
+        (Params.for_working_side)."""
+        return max(max(p.size) for p in self.photos)
 
 
 def find_image_dir(root: Path) -> tuple[Path, Path | None]:
@@ -164,7 +172,9 @@ def load_photo(path: Path, max_side: int, warn=None) -> Photo:
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
-    h.update(f"{max_side}:{rgb.shape}".encode())
+    # the working size the photo was loaded at (the shape names it), not the limit: a photo smaller
+    # than max_side keeps one key under any limit above its size
+    h.update(f"{min(max_side, max(raw.shape[:2]))}:{rgb.shape}".encode())
     f35, problem = exif_focal_35mm(path)
     if problem and warn is not None:
         warn(f"{path}: {problem}; ignored")
@@ -183,7 +193,7 @@ def list_images(folder: Path) -> tuple[list[Path], list[Path]]:
     return images, others
 
 
-def load_set(root: Path, max_side: int = 640, warn=None, gt_dir: Path | None = None) -> PhotoSet:
+def load_set(root: Path, max_side: int = DEFAULT_MAX_SIDE, warn=None, gt_dir: Path | None = None) -> PhotoSet:
     """Load every photo of a set. Unreadable photos are skipped with a warning.
 
     Ground truth is `gt_dir` when given, else `gt/` beside the photos (or beside `images/`).

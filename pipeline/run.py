@@ -840,6 +840,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
     cache = cache or cache_mod.PairCache(None)
     workers = default_workers() if workers is None else workers
     progress = progress or (lambda *_: None)
+    params = params.for_working_side(photo_set.working_side)   # the photos' size, not the limit they met
     warnings: list[str] = []
 
     def _warn(msg: str) -> None:

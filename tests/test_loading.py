@@ -103,3 +103,15 @@ def test_ground_truth_values_and_size(tmp_path):
     assert load_gt(tmp_path, "missing", (2, 3)) is None
     with pytest.raises(InputError, match="ground truth is 3x2"):
         load_gt(tmp_path, "a", (5, 5))
+
+
+def test_a_photo_smaller_than_the_limit_is_the_same_photo_under_any_larger_limit(tmp_path):
+    """A limit above a photo's size leaves it as it is, with the same cache key (the key names the
+    working size, not the limit), and the set's working side is its largest photo's."""
+    cv2.imwrite(str(tmp_path / "a.png"), _photo(60, 80, seed=1))
+    cv2.imwrite(str(tmp_path / "b.png"), _photo(90, 120, seed=2))
+    at_own, at_big = load_photo(tmp_path / "a.png", 80), load_photo(tmp_path / "a.png", 1280)
+    assert at_own.key == at_big.key and np.array_equal(at_own.rgb, at_big.rgb) and at_big.scale == 1.0
+    assert load_photo(tmp_path / "a.png", 40).key != at_own.key
+    assert load_set(tmp_path, 1280).working_side == 120
+    assert load_set(tmp_path, 100).working_side == 100
