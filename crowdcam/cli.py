@@ -493,8 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
     def common(p, cache=True):
         p.add_argument("--preset", default="default", choices=sorted(PRESETS),
                        help="parameter preset: default (ours) or paper (the paper's method unchanged)")
-        p.add_argument("--max-side", type=int, default=None, help="working resolution: photos are resized so that their longer side is at most this (px; "
-                            f"default {DEFAULT_MAX_SIDE}; 640 for a first look about 3x faster on larger photos)")
+        p.add_argument("--max-side", type=int, default=None,
+                       help="working resolution: photos are resized so that their longer side is at most this "
+                            f"(px; default {DEFAULT_MAX_SIDE}; 640 for a first look about 3x faster on larger photos)")
         p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
         p.add_argument("--quiet", action="store_true", help="no progress output")
         if cache:

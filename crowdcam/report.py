@@ -416,7 +416,8 @@ def cmd_report(args) -> int:
     out = Path(args.out) if args.out else Path.cwd() / "crowdcam-out" / photo_set.name / "report"
     if is_inside(out, set_dir):
         raise CliError(f"{out}: the output folder must not be inside the input folder {set_dir}")
-    rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, working size {params.max_side} px")
+    rep.info(f"{photo_set.name}: {len(photo_set.photos)} photos, preset {params.preset}, "
+             f"working size {params.max_side} px")
     res = detect_set(photo_set, params, _cache(args, rep), workers=args.workers, progress=rep.progress, warn=rep.warn,
                      max_supports=args.max_supports)
     rep.close()

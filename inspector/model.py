@@ -52,7 +52,8 @@ class Settings:
     changes: tuple[str, ...] = ()      # `crowdcam inspect --param` settings, applied to every preset
 
     @staticmethod
-    def for_preset(preset: str, ref: int = 0, max_side: int = DEFAULT_MAX_SIDE, changes: tuple[str, ...] = ()) -> "Settings":
+    def for_preset(preset: str, ref: int = 0, max_side: int = DEFAULT_MAX_SIDE,
+                   changes: tuple[str, ...] = ()) -> "Settings":
         p = preset_params(preset, max_side, changes)
         return Settings(preset, ref, (), p.aggregate.threshold, tuple(p.aggregate.remap), p.descriptors.w_hog,
                         p.descriptors.w_color, p.aggregate.no_evidence, p.aggregate.refine_radius_frac > 0, max_side,
