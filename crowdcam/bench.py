@@ -130,14 +130,15 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
 
     ctx = mp.get_context("spawn")
     rows = []
-    head = (f"{'set':<20} {'preset':<15} {'imgs':>4} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'pair s':>7} "
+    head = (f"{'set':<20} {'preset':<15} {'imgs':>4} {'px':>5} {'pairs':>5} {'cold s':>7} {'s/pair':>7} {'pair s':>7} "
             f"{'warm s':>7} {'peak MB':>9} {'J img':>11} {'J set':>11} {'thr':>5} {'static>0.5':>10} "
             f"{'F <2px/p90>10/med':>17}")
     if settings:
         print("settings changed from the presets:", " ".join(settings))
     if max_supports is not None:
         print(f"supports per photo: at most {max_supports}" if max_supports else "supports per photo: no cap")
-    print("s/pair: cold seconds / ordered pairs, end to end; pair s: the pairs' stage alone / ordered pairs")
+    print("px: the working size (longer side) the set ran at; s/pair: cold seconds / ordered pairs, end to end; "
+          "pair s: the pairs' stage alone / ordered pairs")
     print(head)
     for s in sets:
         for preset in presets:
@@ -155,7 +156,8 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
                   if row.get("has_motion") else "-")
             js = f"{row['jaccard_opt_set']:.2f}±{row['jaccard_opt_set_std']:.2f}" if row.get("has_motion") else "-"
             thr = f"{row['best_threshold']:.2f}" if row.get("has_motion") else "-"
-            print(f"{row['set']:<20} {preset:<15} {row['images']:>4} {row['ordered_pairs']:>5} {row['cold_s']:>7.1f} "
+            print(f"{row['set']:<20} {preset:<15} {row['images']:>4} {row['working_side']:>5} {row['ordered_pairs']:>5} "
+                  f"{row['cold_s']:>7.1f} "
                   f"{row['s_per_pair']:>7.2f} {row['pair_stage_s_per_pair']:>7.3f} {row['warm_s']:>7.2f} "
                   f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} {thr:>5} "
                   f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
