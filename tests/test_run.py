@@ -164,7 +164,7 @@ def test_geometry_tasks_read_the_shared_features_as_they_were_given():
 def test_a_set_smaller_than_the_working_size_runs_at_its_own_size(tmp_path):
     """Photos smaller than max_side are used as they are, and every length that follows the working
     size (the patch length, the guided filter's radius) follows the photos (Params.for_working_side):
-    a set of 160-px photos gives the same maps under max_side 160 and 1280, from the same cache keys."""
+    a set of 160-px photos gives the same maps under max_side 160 and 1280, from the same cache entries."""
     from pipeline.cache import PairCache
     from pipeline.loading import load_set
     from pipeline.params import get_preset
@@ -173,9 +173,12 @@ def test_a_set_smaller_than_the_working_size_runs_at_its_own_size(tmp_path):
     small = load_set(SAMPLE_SETS / "tabletop_ball", 160)
     assert small.working_side == 160
     own = detect_set(small, get_preset("default").replace(max_side=160), PairCache(tmp_path / "own"), workers=1)
-    cache = PairCache(tmp_path / "big")
-    big = detect_set(small, get_preset("default").replace(max_side=1280), cache, workers=1)
+    big = detect_set(small, get_preset("default").replace(max_side=1280), PairCache(tmp_path / "big"), workers=1)
     assert big.params.max_side == 160
     assert sum(d is not None for d in own.dynamic) >= 2
     for a, b in zip(own.dynamic, big.dynamic):
         assert (a is None and b is None) or np.array_equal(a, b)
+    # under the larger limit the run asks the cache for the very entries the first run wrote
+    again = PairCache(tmp_path / "own")
+    detect_set(small, get_preset("default").replace(max_side=1280), again, workers=1)
+    assert again.misses == 0 and again.hits > 0
