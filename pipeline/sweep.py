@@ -34,6 +34,7 @@ from .params import SweepParams
 
 UNSEEN = 255
 SCALE = 254.0
+BAND_BYTES = 32 << 20    # fuse: the supports' costs of a band of rows, copied together for the kernel
 
 
 @dataclass(frozen=True)
@@ -349,10 +350,19 @@ def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None =
     """
     assert pairs, "no support to fuse"
     D = max(p.cost.shape[2] for p in pairs)
-    stack = np.ascontiguousarray(np.stack([np.broadcast_to(p.cost, (*p.cost.shape[:2], D)) for p in pairs]))
+    H, W = pairs[0].cost.shape[:2]
+    costs = [np.broadcast_to(p.cost, (H, W, D)) for p in pairs]      # "aligned" ones count at every plane
     pinned = np.zeros(len(pairs), np.bool_) if same_spot is None else np.asarray(same_spot, np.bool_)
-    volume, n_vol = _volume_kernel(stack, pinned, float(sp.best_share), float(sp.min_seen_share),
-                                   agree_count(sp, len(pairs)))
+    volume = np.empty((H, W, D), np.float32)
+    n_vol = np.empty((H, W, D), np.uint8)
+    # The kernel reads the supports' costs as one (S, rows, W, D) array: made a band of rows at a time,
+    # so that its copy stays small (every support's whole volume copied took 180 MB a reference at
+    # 1280 px); each pixel's fusion is its own, so the bands give the same volume bit for bit.
+    rows = max(1, BAND_BYTES // max(1, len(pairs) * W * D))
+    for y0 in range(0, H, rows):
+        band = np.ascontiguousarray(np.stack([c[y0:y0 + rows] for c in costs]))
+        volume[y0:y0 + rows], n_vol[y0:y0 + rows] = _volume_kernel(
+            band, pinned, float(sp.best_share), float(sp.min_seen_share), agree_count(sp, len(pairs)))
     if sp.smooth_p2 > 0:
         planes = next((p.planes for p in pairs if len(p.planes)), np.zeros((0, 4)))
         fronto = (planes[:, 0] == 0) & (planes[:, 1] == 0) & (planes[:, 2] == 1)     # listed first
@@ -364,7 +374,7 @@ def fuse(pairs: list[SweepPair], sp: SweepParams, same_spot: np.ndarray | None =
     plane = np.where(seen, plane, -1).astype(np.int16)
     at = np.maximum(plane, 0).astype(np.intp)[None, ..., None]
     n_seen = np.where(seen, np.take_along_axis(n_vol, at[0], 2)[..., 0], 0).astype(np.uint8)
-    per = np.take_along_axis(stack, np.broadcast_to(at, (len(pairs), *plane.shape, 1)), 3)[..., 0]
+    per = np.stack([np.take_along_axis(c, at[0], 2)[..., 0] for c in costs])
     per = np.where(seen[None] & (per != UNSEEN), per.astype(np.float32) / SCALE, np.nan).astype(np.float32)
     return Fused(np.where(seen, cost, np.nan).astype(np.float32), plane, n_seen, per)
 

@@ -388,3 +388,19 @@ def test_the_compiled_planes_last_copy_is_numpys_transpose(shape):
     per_plane = np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8)
     got = SW._planes_last_kernel(per_plane)
     assert got.flags.c_contiguous and np.array_equal(got, per_plane.transpose(1, 2, 0))
+
+
+def test_fusion_by_bands_of_rows_equals_fusion_in_one_band(monkeypatch):
+    """fuse copies the supports' costs for its kernel a band of rows at a time (memory): one row per
+    band gives the same volume, planes, counts and per-support costs as one band for all."""
+    rng = np.random.default_rng(11)
+    cost = rng.integers(0, 256, (4, 9, 8, 6), dtype=np.uint8)
+    pairs = [SW.SweepPair(0, k + 1, cost[k], np.zeros((6, 4)), 0.0) for k in range(3)]
+    pairs.append(SW.SweepPair(0, 4, cost[3][..., :1], np.zeros((0, 4)), 0.0))     # an aligned pair: every plane
+    same = np.array([False, True, False, False])
+    whole = SW.fuse(pairs, SP, same)
+    monkeypatch.setattr(SW, "BAND_BYTES", 1)
+    banded = SW.fuse(pairs, SP, same)
+    assert (whole.plane >= 0).any()
+    for field in ("cost", "plane", "n_seen", "per_support"):
+        np.testing.assert_array_equal(getattr(whole, field), getattr(banded, field))
