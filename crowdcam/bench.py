@@ -156,9 +156,8 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
                   if row.get("has_motion") else "-")
             js = f"{row['jaccard_opt_set']:.2f}±{row['jaccard_opt_set_std']:.2f}" if row.get("has_motion") else "-"
             thr = f"{row['best_threshold']:.2f}" if row.get("has_motion") else "-"
-            print(f"{row['set']:<20} {preset:<15} {row['images']:>4} {row['working_side']:>5} {row['ordered_pairs']:>5} "
-                  f"{row['cold_s']:>7.1f} "
-                  f"{row['s_per_pair']:>7.2f} {row['pair_stage_s_per_pair']:>7.3f} {row['warm_s']:>7.2f} "
+            print(f"{row['set']:<20} {preset:<15} {row['images']:>4} {row['working_side']:>5} "
+                  f"{row['ordered_pairs']:>5} {row['cold_s']:>7.1f} {row['s_per_pair']:>7.2f} {row['pair_stage_s_per_pair']:>7.3f} {row['warm_s']:>7.2f} "
                   f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} {thr:>5} "
                   f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
             fp = row.get("f_precision")
@@ -289,8 +288,8 @@ def ui_latency(set_dir: Path, preset: str = "default", max_side: int = DEFAULT_M
     from pipeline.run import detect_set
 
     ps = load_set(Path(set_dir), max_side)
-    max_side = min(max_side, ps.working_side)
-    params = get_preset(preset).replace(max_side=max_side)
+    params = get_preset(preset).replace(max_side=max_side).for_working_side(ps.working_side)
+    max_side = params.max_side
     snap = detect_set(ps, params, PairCache(cache_dir or default_cache_dir()), workers=None)
     ref = first_reference(snap.supports)
     sups = tuple(snap.supports[ref])

@@ -91,7 +91,7 @@ class SetModel:
         # A gate the run waits at once the support sets are known, before any pair is computed;
         # tests hold a run "still going" with it instead of racing it (None: no gate).
         self.hold = hold
-        self.params = preset_params(preset, min(max_side, photo_set.working_side), changes)
+        self.params = preset_params(preset, max_side, changes).for_working_side(photo_set.working_side)
         self.preset = preset
         self.cache = cache
         self.workers = workers

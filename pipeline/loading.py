@@ -172,9 +172,9 @@ def load_photo(path: Path, max_side: int, warn=None) -> Photo:
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
-    # the working size the photo was loaded at (the shape names it), not the limit: a photo smaller
-    # than max_side keeps one key under any limit above its size
-    h.update(f"{min(max_side, max(raw.shape[:2]))}:{rgb.shape}".encode())
+    # the working size the photo was loaded at, not the limit: a photo smaller than max_side keeps
+    # one key under any limit above its size
+    h.update(f"{max(rgb.shape[:2])}:{rgb.shape}".encode())
     f35, problem = exif_focal_35mm(path)
     if problem and warn is not None:
         warn(f"{path}: {problem}; ignored")
