@@ -92,7 +92,8 @@ class PixelEvidence:
     Swept pairs (sweep.py) add: strip: (2, 2) float64 the part of the epipolar line the
     reference's depth range allows (near to far, the bounded strip) in the support; depth_point:
     where the depth all supports agreed on puts the pixel in the support; depth: that depth
-    (reference camera, the reconstruction's units; inf for the plane at infinity); cost: this
+    (reference camera, the reconstruction's units; inf for the plane at infinity; NaN for a pencil
+    without cameras, pencil.py, whose strip is the part of the line its hypotheses span); cost: this
     support's colour-SSIM cost there (NaN: it does not see it); curve: (D,) its cost at every
     plane from near to far, and fused_curve: (D,) the fused cost (both NaN where unseen).
     """
@@ -211,6 +212,14 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
     cost = float(f.per_support[s, gy, gx])
     fused_curve = _fused_curve(res, i, sw, gy, gx)
     plane = int(f.plane[gy, gx])
+    if sp_.kind == "two-view" and sp_.homographies is not None:
+        # a pencil without cameras (pencil.py): the support's point at each hypothesis is H x, no depth
+        def at(d: int) -> np.ndarray:
+            q = sp_.homographies[d] @ np.array([xy[0], xy[1], 1.0])
+            return q[:2] / q[2] if abs(q[2]) > 1e-12 else np.array([np.nan, np.nan])
+        strip = np.stack([at(0), at(len(sp_.homographies) - 1)])
+        return dataclasses.replace(ev, strip=strip, depth_point=at(plane) if plane >= 0 else None, cost=cost,
+                                   curve=curve, fused_curve=fused_curve)
     if sp_.kind == "aligned" or res.cameras is None or len(sp_.planes) == 0:
         # a direct comparison after the homography: no depth, the point is H x (ev.point)
         return dataclasses.replace(ev, cost=cost, curve=curve, fused_curve=fused_curve)

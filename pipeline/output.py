@@ -67,6 +67,9 @@ def summary_dict(res: SetResult, threshold: float, extra: dict | None = None) ->
         d["F"] = None if g.F is None else fundamental_to_original(g.F, photos[i].scale, photos[j].scale).tolist()
         if d["uncertainty_px"] is not None:          # in the support's original pixels, like F
             d["uncertainty_px"] = round(g.uncertainty_px / photos[j].scale, 2)
+        # how the pair speaks in the depth cue: over the cameras' planes, over the reference's pencil
+        # of planes without cameras (pencil.py), compared directly after a homography, or not at all
+        d["depth_cue"] = {"sweep": "cameras", "two-view": "pencil", "aligned": "aligned"}.get(res.sweep_kind(i, j))
         pairs.append(d)
     cams = res.cameras
     return {

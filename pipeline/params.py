@@ -165,6 +165,8 @@ class SweepParams:
     direct_homography: bool = True     # homography pairs without cameras: SSIM of the aligned pixels as well,
     direct_max_parallax_frac: float = 0.005  # when their residual parallax is this small (3 px at 640)
     direct_reach_frac: float = 0.0     # and only inside the hull of the H inliers (and this x max side beyond)
+    two_view: bool = False             # a photo without cameras: its epipolar supports swept over one pencil of
+                                       # planes compatible with their F's (pencil.py)
     full_support: int = 1              # the cue counts in full where this many supports see the point
     min_seen_share: float = 0.0        # a plane counts where at least this share of the most supports seeing
                                        # the point at any plane see it (0: every plane, EVIDENCE_NOTES)
@@ -270,7 +272,7 @@ class Params:
 
     def sweep_key_material(self) -> str:
         """The parameters a per-pair cost volume depends on (not the fusion's, nor the calibration)."""
-        d = {k: v for k, v in dataclasses.asdict(self.sweep).items() if k not in SWEEP_FUSION}
+        d = {k: v for k, v in dataclasses.asdict(self.sweep).items() if k not in SWEEP_FUSION + ("two_view",)}
         return json.dumps({"max_side": self.max_side, "sweep": d}, sort_keys=True)
 
     def geometry_key_material(self) -> str:
@@ -334,7 +336,7 @@ PRESETS: dict[str, Params] = {
                                   calib_scale=1.641, calib_offset=-0.4,
                                   plane_weight=0.6, plane_dynamic_cap=0.5, splat_step=2),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_px=8.0,
-                          smooth_p2=4.0, two_supports_agree=True),
+                          smooth_p2=4.0, two_supports_agree=True, two_view=True),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
     "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),

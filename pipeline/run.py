@@ -42,7 +42,9 @@ from .support import (PairGeometry, cap_supports, estimate_pair, not_compared, s
 from .peer import PeerPair, difference, dynamic_from_differences, plane_difference, plane_log_odds
 from .homography import aligned_support, reach_distance
 from .photometric import normalise_aligned
-from .sweep import Fused, aligned_pair, depth_span_px, fuse, inverse_depths, reference_planes, sweep_pair
+from .pencil import MIN_TRACKS, shared_pencil
+from .sweep import (Fused, aligned_pair, depth_span_px, fuse, inverse_depths, pencil_pair, reference_planes,
+                    sweep_pair)
 
 Progress = Callable[[str, int, int], None]
 
@@ -80,8 +82,20 @@ class SetResult:
     _spans: dict = field(default_factory=dict, repr=False, compare=False)
 
     def is_swept(self, i: int, j: int) -> bool:
-        """The pair also has a cost volume of the depth sweep (sweep.py)."""
-        return (i, j) in self.pair_results and _light(self.pair_results, (i, j)).swept
+        """The pair has a sweep (sweep.py) for photo i's depth cue: a cost volume over the set's
+        cameras' planes or over a pencil without cameras, or an aligned pair's direct comparison."""
+        return self.sweep_kind(i, j) is not None
+
+    def sweep_kind(self, i: int, j: int) -> str | None:
+        """The kind of the pair's sweep (SweepPair.kind, without loading an evicted pair): "sweep"
+        (the set's cameras), "aligned" (a homography pair compared directly), "two-view" (its
+        reference's pencil of planes without cameras, pencil.py), or None when it has none."""
+        if (i, j) not in self.pair_results or not _light(self.pair_results, (i, j)).swept:
+            return None
+        g = self.pairs[(i, j)]
+        if _sweepable((i, j), g, self.cameras, self.params, self.photo_set.photos[i].size):
+            return "sweep"
+        return "aligned" if g.is_homography else "two-view"
 
     def kind(self, i: int, j: int) -> str:
         """"epipolar", "homography" or "peer" (without loading an evicted pair)."""
@@ -116,9 +130,11 @@ class SetResult:
         if not p.sweep.same_spot_px > 0:
             return out
         for k, j in enumerate(supports):
-            if self.pair_results[(i, j)].sweep.kind == "aligned":
+            kind = self.pair_results[(i, j)].sweep.kind
+            if kind == "aligned":
                 out[k] = True
-            elif self.cameras is not None and self.cameras.registered[i] and self.cameras.registered[j]:
+            elif kind == "sweep" and self.cameras is not None and self.cameras.registered[i] \
+                    and self.cameras.registered[j]:
                 out[k] = self.depth_span(i, j) < p.sweep.same_spot_px
         return out
 
@@ -450,7 +466,9 @@ def _pair_result(i: int, j: int, g: PairGeometry, sweep_args: tuple | None) -> t
         if sweep_args is not None and p.patches.swept_fans > 0:     # fewer fans where the depth cue speaks too
             pm = p.replace(patches=dataclasses.replace(p.patches, n_fans=p.patches.swept_fans))
         r = match_pair(i, j, _channels(i), ch_sup, g.F, g.scale, pm)
-    if sweep_args is not None:
+    if sweep_args is not None and sweep_args[0] == "pencil":
+        r = dataclasses.replace(r, sweep=pencil_pair(i, j, rgb_i, normalised, sweep_args[1], p.sweep))
+    elif sweep_args is not None:
         r = dataclasses.replace(r, sweep=sweep_pair(i, j, rgb_i, normalised, *sweep_args, p.sweep))
     elif g.is_homography and p.sweep.enabled and p.sweep.direct_homography \
             and g.uncertainty_px <= p.sweep.direct_max_parallax_frac * max(rgb_i.shape[:2]):
@@ -764,6 +782,13 @@ def _sweepable(ij: tuple[int, int], g: PairGeometry, cameras: SetCameras | None,
     return g.source == "homography" and certain
 
 
+def _two_view_sweepable(g: PairGeometry, params: Params) -> bool:
+    """An epipolar pair that can join its reference's pencil of planes (pencil.py), asked for the
+    photos none of whose supports the set's cameras sweep (_sweepable)."""
+    return bool(params.sweep.enabled and params.sweep.two_view and not g.is_homography and g.F is not None
+                and len(g.inliers_ref) >= MIN_TRACKS)
+
+
 def _digest_arrays(*arrays) -> str:
     import hashlib
     h = hashlib.sha256()
@@ -981,6 +1006,18 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 g_i = (cameras.R[i] @ ground[0], float(ground[0] @ cameras.C[i] + ground[1]))
             inv[i] = reference_planes(inverse_depths((cameras.depth_range[i][0], np.inf), params.sweep.n_planes),
                                       g_i, params.sweep.ground_planes)
+        # photos without cameras: their epipolar supports swept over one pencil of planes (pencil.py)
+        pencil = {}
+        for i in refs:
+            if params.sweep.enabled and params.sweep.two_view and not any((i, j) in swept for j in supports[i]):
+                cand = {j: pairs[(i, j)] for j in supports[i] if _two_view_sweepable(pairs[(i, j)], params)}
+                ps_i = shared_pencil({j: (g.F, g.inliers_ref, g.inliers_sup,
+                                          None if g.inlier_idx is None or len(g.inlier_idx) != len(g.inliers_ref)
+                                          else g.inlier_idx[:, 0]) for j, g in cand.items()},
+                                     photos[i].size, params.sweep.n_planes + params.sweep.ground_planes,
+                                     grid_scale=params.sweep.scale) if cand else None
+                if ps_i is not None:
+                    pencil.update({(i, j): ps_i.homographies(j) for j in ps_i.base})
         pkey = {}
         for i, j in ordered:
             g = pairs[(i, j)]
@@ -992,6 +1029,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
             elif g.is_homography and params.sweep.enabled and params.sweep.direct_homography \
                     and g.uncertainty_px <= params.sweep.direct_max_parallax_frac * max(photos[i].size):
                 parts += [params.sweep_key_material(), "aligned", str(params.patches.homography_reach_frac)]
+            elif (i, j) in pencil:
+                parts += [params.sweep_key_material(), "pencil", _digest_arrays(pencil[(i, j)])]
             if params.plane_cue:                      # the pair holds its plane-aligned difference too
                 parts += ["plane", str(params.geometry.ransac_px), str(params.geometry.min_inliers)]
             pkey[(i, j)] = cache_mod.key("pair", *parts)
@@ -1016,7 +1055,8 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 cache.put("light", pkey[ij], cache_mod.to_bytes(light_of(r)))
             if on_pair:
                 on_pair(ij)
-        sweep_args = lambda i, j: (cam(i), cam(j), inv[i]) if (i, j) in swept else None
+        sweep_args = lambda i, j: (cam(i), cam(j), inv[i]) if (i, j) in swept else \
+            (("pencil", pencil[(i, j)]) if (i, j) in pencil else None)
 
         def recompute(ij):
             """A pair read lazily that the cache lost or found bad: computed again here (inline)."""

@@ -44,8 +44,10 @@ class SweepPair:
 
     cost: (h, w, D) uint8, cost * 254 or UNSEEN (planes last: the fusion reads a pixel's planes
     contiguously); planes: (D, 4) float64 the planes n . X = d in the reference camera's frame
-    (n unit, d = inf for the plane at infinity; see reference_planes), empty for "aligned";
-    seconds: compute time.
+    (n unit, d = inf for the plane at infinity; see reference_planes), empty for "aligned" and
+    "two-view"; seconds: compute time; kind: "sweep" (the set's cameras), "aligned" (a support from
+    the same spot, compared directly) or "two-view" (a pencil of planes without cameras, pencil.py);
+    homographies: for "two-view", (D, 3, 3) float64 reference -> support working px per plane.
     """
 
     ref: int
@@ -54,6 +56,7 @@ class SweepPair:
     planes: np.ndarray
     seconds: float
     kind: str = "sweep"
+    homographies: np.ndarray | None = None
 
     def depth_at(self, plane: np.ndarray, xy: np.ndarray, K: np.ndarray) -> np.ndarray:
         """Depth (reference camera z) of the pixels xy (N, 2) on the given plane indices (N,):
@@ -249,6 +252,14 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
     A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
     Hs = plane_homographies(*cam_ref, *cam_sup, planes)
     Hs = A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None]
+    pair = _volume_of(ref, sup, rgb_ref, rgb_sup, Hs, g_ref, g_sup, sp)
+    return SweepPair(ref, sup, pair.cost, planes, time.perf_counter() - t0)
+
+
+def _volume_of(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs: np.ndarray, g_ref: tuple[int, int],
+               g_sup: tuple[int, int], sp: SweepParams) -> SweepPair:
+    """The cost volume of a support warped by Hs (D, 3, 3) (reference grid -> support grid), as a
+    SweepPair without planes."""
     rs = ref_stats(lab_image(rgb_ref, g_ref, sp), sp.window)
     sup_lab = lab_image(rgb_sup, g_sup, sp)
     if sp.window % 2 == 0 or sp.window >= min(g_ref):      # the kernel reflects a window once at the borders
@@ -263,8 +274,22 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
             continue
         per_plane[d] = _plane_kernel(warp(sup_ones, H, g_ref), rs.lab, rs.mean, rs.var, sp.window, float(sp.ssim_c1),
                                      float(sp.ssim_c2), lum_l, float(sp.color_weight), float(sp.color_tau))
-    cost = _planes_last_kernel(per_plane)
-    return SweepPair(ref, sup, cost, planes, time.perf_counter() - t0)
+    return SweepPair(ref, sup, _planes_last_kernel(per_plane), np.zeros((0, 4)), 0.0)
+
+
+def pencil_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs: np.ndarray,
+                sp: SweepParams) -> SweepPair:
+    """Cost volume of a support without cameras over its reference's shared pencil of planes
+    (pencil.py; kind "two-view", no planes in a camera frame): Hs (D, 3, 3) maps reference to
+    support working px for each hypothesis. rgb_* as in sweep_pair."""
+    t0 = time.perf_counter()
+    g_ref, g_sup = sweep_size(rgb_ref.shape[:2], sp), sweep_size(rgb_sup.shape[:2], sp)
+    A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
+    Hs_work = np.asarray(Hs, float)
+    Hs = A_sup[None] @ Hs_work @ np.linalg.inv(A_ref)[None]
+    pair = _volume_of(ref, sup, rgb_ref, rgb_sup, Hs, g_ref, g_sup, sp)
+    return SweepPair(ref, sup, pair.cost, np.zeros((0, 4)), time.perf_counter() - t0, kind="two-view",
+                     homographies=np.asarray(Hs_work, np.float64))
 
 
 def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.ndarray, valid: np.ndarray,

@@ -182,3 +182,34 @@ def test_a_set_smaller_than_the_working_size_runs_at_its_own_size(tmp_path):
     again = PairCache(tmp_path / "own")
     detect_set(small, get_preset("default").replace(max_side=1280), again, workers=1)
     assert again.misses == 0 and again.hits > 0
+
+
+def test_photos_without_cameras_share_a_pencil_of_planes_and_explain_it(tmp_path):
+    """A set run without its reconstruction: each photo's epipolar supports are swept over one
+    pencil compatible with their F's (pipeline/pencil.py), and a pixel's explanation puts the
+    agreed hypothesis on the pair's epipolar line."""
+    from pipeline.cache import PairCache
+    from pipeline.explain import explain_pixel
+    from pipeline.geometry import epipolar_lines
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+
+    ps = load_set(SAMPLE_SETS / "street_sideways", 240)
+    params = get_preset("default").replace(max_side=240).with_settings(["geometry.reconstruction=false"])
+    res = detect_set(ps, params, PairCache(tmp_path), workers=1)
+    kinds = {ij: res.sweep_kind(*ij) for ij in res.pair_results}
+    pencils = [ij for ij, k in kinds.items() if k == "two-view"]
+    assert pencils and "sweep" not in kinds.values()
+    i, j = pencils[0]
+    sups = [k for k in res.supports[i] if res.is_swept(i, k)]
+    assert len(sups) >= 2 and res.fused(i, sups) is not None
+    h, w = ps.photos[i].size
+    ev = explain_pixel(res, i, j, (w / 2, h / 2), res.supports[i])
+    assert ev.strip is not None and ev.depth_point is not None and not np.isfinite(ev.depth)
+    line = epipolar_lines(res.pairs[(i, j)].F, np.array([[w / 2, h / 2]]))[0]
+    for q in (*ev.strip, ev.depth_point):
+        assert abs(line @ np.append(q, 1.0)) < 0.5
+    # without the pencil the same photos have no depth cue
+    off = detect_set(ps, params.with_settings(["sweep.two_view=false"]), PairCache(tmp_path), workers=1)
+    assert all(off.sweep_kind(*ij) is None for ij in off.pair_results if off.pairs[ij].F is not None)
