@@ -21,7 +21,9 @@ are enough for a sweep all its supports share (a departure, `sweep.two_view`):
 What it does not know is where infinity lies (no focal length, no metric depth): the range swept
 is that of the tracks, widened by half on each side. A support that shares too few tracks with the
 others (directly or through another support) is left out of the sweep (it still speaks through
-its strips). Shapes: pixels are working-resolution (x, y); homographies map reference to support.
+its strips); a photo left with one support is swept only where that pair's lines are certain
+(run.detect_set: nothing else checks its F). Shapes: pixels are working-resolution (x, y);
+homographies map reference to support.
 """
 
 from __future__ import annotations

@@ -1015,7 +1015,13 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                                           None if g.inlier_idx is None or len(g.inlier_idx) != len(g.inliers_ref)
                                           else g.inlier_idx[:, 0]) for j, g in cand.items()},
                                      photos[i].size, params.sweep.n_planes + params.sweep.ground_planes,
-                                     grid_scale=params.sweep.scale) if cand else None
+                                     grid_scale=params.sweep.scale, min_supports=1) if cand else None
+                # one support alone has no other to check its F against (the shared tracks do that):
+                # it needs lines as certain as the cameras' sweep asks (recon_max_uncertainty_frac)
+                if ps_i is not None and len(ps_i.base) == 1 and not (
+                        pairs[(i, ps_i.anchor)].uncertainty_px
+                        <= params.geometry.recon_max_uncertainty_frac * max(photos[i].size)):
+                    ps_i = None
                 if ps_i is not None:
                     pencil.update({(i, j): ps_i.homographies(j) for j in ps_i.base})
         pkey = {}

@@ -201,8 +201,14 @@ def test_photos_without_cameras_share_a_pencil_of_planes_and_explain_it(tmp_path
     kinds = {ij: res.sweep_kind(*ij) for ij in res.pair_results}
     pencils = [ij for ij, k in kinds.items() if k == "two-view"]
     assert pencils and "sweep" not in kinds.values()
-    i, j = pencils[0]
-    sups = [k for k in res.supports[i] if res.is_swept(i, k)]
+    by_ref = {}
+    for i, j in pencils:
+        by_ref.setdefault(i, []).append(j)
+    limit = params.geometry.recon_max_uncertainty_frac * 240
+    for i, sups in by_ref.items():        # a lone support has no other to check its F: certain lines
+        assert len(sups) >= 2 or res.pairs[(i, sups[0])].uncertainty_px <= limit
+    i, sups = max(by_ref.items(), key=lambda kv: len(kv[1]))
+    j = sups[0]
     assert len(sups) >= 2 and res.fused(i, sups) is not None
     h, w = ps.photos[i].size
     ev = explain_pixel(res, i, j, (w / 2, h / 2), res.supports[i])
@@ -213,3 +219,24 @@ def test_photos_without_cameras_share_a_pencil_of_planes_and_explain_it(tmp_path
     # without the pencil the same photos have no depth cue
     off = detect_set(ps, params.with_settings(["sweep.two_view=false"]), PairCache(tmp_path), workers=1)
     assert all(off.sweep_kind(*ij) is None for ij in off.pair_results if off.pairs[ij].F is not None)
+
+
+def test_a_lone_pencil_support_needs_certain_lines(tmp_path):
+    """A photo with one epipolar support has no other to check that pair's F through shared
+    tracks: it is swept only when the pair's lines are as certain as the cameras' sweep asks."""
+    from pipeline.cache import PairCache
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+
+    ps = load_set(SAMPLE_SETS / "low_collinear", 240)
+    params = get_preset("default").replace(max_side=240).with_settings(["geometry.reconstruction=false"])
+    res = detect_set(ps, params, PairCache(tmp_path), workers=1)
+    limit = params.geometry.recon_max_uncertainty_frac * 240
+    lone = {i: s[0] for i, s in enumerate([[j for j in sup if res.pairs[(i, j)].F is not None]
+                                            for i, sup in enumerate(res.supports)]) if len(s) == 1}
+    uncertain = [i for i, j in lone.items() if res.pairs[(i, j)].uncertainty_px > limit]
+    assert uncertain
+    for i in uncertain:
+        assert res.sweep_kind(i, lone[i]) is None
+    assert any(k == "two-view" for k in (res.sweep_kind(*ij) for ij in res.pair_results))
