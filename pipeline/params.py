@@ -272,6 +272,8 @@ class Params:
 
     def sweep_key_material(self) -> str:
         """The parameters a per-pair cost volume depends on (not the fusion's, nor the calibration)."""
+        # two_view chooses which pairs are swept over a pencil (their keys hold its homographies), not
+        # how a volume over the cameras' planes is made
         d = {k: v for k, v in dataclasses.asdict(self.sweep).items() if k not in SWEEP_FUSION + ("two_view",)}
         return json.dumps({"max_side": self.max_side, "sweep": d}, sort_keys=True)
 

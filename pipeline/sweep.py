@@ -12,7 +12,8 @@ colour SSIM cost.
 
 Per pair (reference i, support j) the result is a cost volume (D planes x h x w) at a reduced
 resolution; a support from the same spot whose camera is unknown (a homography pair) gives one
-depth-independent cost map instead (direct comparison of aligned pixels). Per reference,
+depth-independent cost map instead (direct comparison of aligned pixels), and the supports of a
+photo without a camera are swept over a pencil of planes their F's share (pencil.py). Per reference,
 `fuse` takes at each depth the mean cost of the best half of the supports that see the point
 (a support where the point is hidden must not veto it) and keeps the best depth. A point that no
 support sees has no evidence.
@@ -252,14 +253,13 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
     A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
     Hs = plane_homographies(*cam_ref, *cam_sup, planes)
     Hs = A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None]
-    pair = _volume_of(ref, sup, rgb_ref, rgb_sup, Hs, g_ref, g_sup, sp)
-    return SweepPair(ref, sup, pair.cost, planes, time.perf_counter() - t0)
+    return SweepPair(ref, sup, _cost_volume(rgb_ref, rgb_sup, Hs, g_ref, g_sup, sp), planes, time.perf_counter() - t0)
 
 
-def _volume_of(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs: np.ndarray, g_ref: tuple[int, int],
-               g_sup: tuple[int, int], sp: SweepParams) -> SweepPair:
-    """The cost volume of a support warped by Hs (D, 3, 3) (reference grid -> support grid), as a
-    SweepPair without planes."""
+def _cost_volume(rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs: np.ndarray, g_ref: tuple[int, int],
+                 g_sup: tuple[int, int], sp: SweepParams) -> np.ndarray:
+    """The cost volume (h, w, D) uint8 (SweepPair.cost) of a support warped by Hs (D, 3, 3),
+    reference grid -> support grid."""
     rs = ref_stats(lab_image(rgb_ref, g_ref, sp), sp.window)
     sup_lab = lab_image(rgb_sup, g_sup, sp)
     if sp.window % 2 == 0 or sp.window >= min(g_ref):      # the kernel reflects a window once at the borders
@@ -274,7 +274,7 @@ def _volume_of(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs:
             continue
         per_plane[d] = _plane_kernel(warp(sup_ones, H, g_ref), rs.lab, rs.mean, rs.var, sp.window, float(sp.ssim_c1),
                                      float(sp.ssim_c2), lum_l, float(sp.color_weight), float(sp.color_tau))
-    return SweepPair(ref, sup, _planes_last_kernel(per_plane), np.zeros((0, 4)), 0.0)
+    return _planes_last_kernel(per_plane)
 
 
 def pencil_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs: np.ndarray,
@@ -285,11 +285,9 @@ def pencil_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs
     t0 = time.perf_counter()
     g_ref, g_sup = sweep_size(rgb_ref.shape[:2], sp), sweep_size(rgb_sup.shape[:2], sp)
     A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
-    Hs_work = np.asarray(Hs, float)
-    Hs = A_sup[None] @ Hs_work @ np.linalg.inv(A_ref)[None]
-    pair = _volume_of(ref, sup, rgb_ref, rgb_sup, Hs, g_ref, g_sup, sp)
-    return SweepPair(ref, sup, pair.cost, np.zeros((0, 4)), time.perf_counter() - t0, kind="two-view",
-                     homographies=np.asarray(Hs_work, np.float64))
+    Hs = np.asarray(Hs, np.float64)
+    cost = _cost_volume(rgb_ref, rgb_sup, A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None], g_ref, g_sup, sp)
+    return SweepPair(ref, sup, cost, np.zeros((0, 4)), time.perf_counter() - t0, kind="two-view", homographies=Hs)
 
 
 def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.ndarray, valid: np.ndarray,
