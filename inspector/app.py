@@ -938,19 +938,28 @@ class Session:
     def _straighten(self, cam) -> bool:
         pos, look = np.asarray(cam.position, np.float64), np.asarray(cam.look_at, np.float64)
         up = np.asarray(cam.up_direction, np.float64)
-        if abs(look[2]) > 1e-3:
-            # not a photo-view camera (pan and orbit keep look_at on the photo's plane, z = 0): a
-            # late report of the 3-D view's camera (the tour's step 1, the Geometry view) arriving
-            # after the switch back. Straightening it would keep its look_at, off the photo: refit.
-            self._fit_camera()
-            self._record("camera refitted", None)
-            return True
         f = look - pos
         dist = float(np.linalg.norm(f))
         if dist < 1e-9 or np.linalg.norm(up) < 1e-9:
             return False
+        drifted = abs(look[2]) > 1e-3
+        if drifted:
+            if f[2] / dist > 0.99 and abs(look[2]) < 0.05 * dist:
+                # the photo view's own camera, nearly straight, its look_at a little off the photo's
+                # plane: a report made between the position and the look_at that straightening sets
+                # (the position drags look_at along) while the user still drags. Put it back where
+                # its ray meets the plane, keeping the zoom: a refit here lost the user's zoom, now
+                # and then, under load (the browser test's zoom kept after a drag).
+                look = pos + f * (-pos[2] / f[2])
+            else:
+                # not a photo-view camera (pan and orbit keep look_at on the photo's plane, z = 0): a
+                # late report of the 3-D view's camera (the tour's step 1, the Geometry view) arriving
+                # after the switch back. Straightening it would keep its look_at, off the photo: refit.
+                self._fit_camera()
+                self._record("camera refitted", None)
+                return True
         straight = f[2] / dist > STRAIGHT_COS and float(up @ (0.0, -1.0, 0.0)) / np.linalg.norm(up) > STRAIGHT_COS
-        if straight:
+        if straight and not drifted:
             return False
         with self.client.atomic():          # position first: it drags look_at along
             cam.position = (look[0], look[1], look[2] - dist)

@@ -128,7 +128,7 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
     of every aligned support's tracks (2nd to 98th percentile, widened by half on each side), one
     sweep-grid pixel apart (grid_scale: the sweep grid / working size) at the 90th percentile of a
     grid of reference pixels in the support that moves most, min_planes to max_planes of them.
-    None when no support has a pencil."""
+    None when fewer than min_supports supports are aligned."""
     pencils = {}
     for j, (F, x_r, x_s, ids) in pairs.items():
         if F is None or len(x_r) < MIN_TRACKS:

@@ -336,7 +336,7 @@ def test_keys_on_a_control_leave_the_photo_straight(app, browser, shots):
     # the zoom is kept, not reset to the fit (the wheel's zoom eases out over a few frames, so
     # `zoomed` may be read before its end: at least that far, and still clearly zoomed out)
     final = np.linalg.norm(np.asarray(cam.look_at) - np.asarray(cam.position))
-    assert final >= 0.99 * zoomed and final > 1.05 * dist, (final, zoomed, dist)
+    assert final >= 0.99 * zoomed and final > 1.05 * dist, (final, zoomed, dist, tab.events[-12:])
     page.screenshot(path=str(shots / "9_after_keys.png"))
     page.context.close()
 
