@@ -157,7 +157,8 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
             js = f"{row['jaccard_opt_set']:.2f}±{row['jaccard_opt_set_std']:.2f}" if row.get("has_motion") else "-"
             thr = f"{row['best_threshold']:.2f}" if row.get("has_motion") else "-"
             print(f"{row['set']:<20} {preset:<15} {row['images']:>4} {row['working_side']:>5} "
-                  f"{row['ordered_pairs']:>5} {row['cold_s']:>7.1f} {row['s_per_pair']:>7.2f} {row['pair_stage_s_per_pair']:>7.3f} {row['warm_s']:>7.2f} "
+                  f"{row['ordered_pairs']:>5} {row['cold_s']:>7.1f} {row['s_per_pair']:>7.2f} "
+                  f"{row['pair_stage_s_per_pair']:>7.3f} {row['warm_s']:>7.2f} "
                   f"{row['peak_mb_main']:>4.0f}/{row['peak_mb_worker']:<4.0f} {ji:>11} {js:>11} {thr:>5} "
                   f"{row['static_fp_rate']:>10.1%} {_f_cell(row.get('f_precision')):>17}")
             fp = row.get("f_precision")

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import epipoles, to_homogeneous
+
 MIN_TRACKS = 8          # reference keypoints matched in both supports, to align one support to another
 MAX_ALIGN_PX = 2.0      # the alignment's median residual, in support pixels, above which it is not trusted
 MIN_SPAN_PX = 16.0      # the least the sweep moves a match either way along its line, working px
@@ -75,10 +77,10 @@ def two_view_pencil(F: np.ndarray, x_ref: np.ndarray, x_sup: np.ndarray) -> tupl
     all in working px."""
     T_r, T_s = _similarity(x_ref), _similarity(x_sup)
     Fn = np.linalg.inv(T_s).T @ F @ np.linalg.inv(T_r)
-    e = np.linalg.svd(Fn.T)[2][-1]                       # e'^T Fn = 0
+    e = epipoles(Fn)[1]                                 # e'^T Fn = 0
     A = np.cross(e, Fn.T).T                             # [e']x Fn: a (degenerate) compatible homography
-    xr = np.column_stack([x_ref, np.ones(len(x_ref))]) @ T_r.T
-    xs = np.column_stack([x_sup, np.ones(len(x_sup))]) @ T_s.T
+    xr = to_homogeneous(x_ref) @ T_r.T
+    xs = to_homogeneous(x_sup) @ T_s.T
     xe = np.cross(xs, e)                                # (N, 3): x' x e'
     M = (xe[:, :, None] * xr[:, None, :]).reshape(-1, 3)      # (x' x e') x^T v = -x' x A x, three rows a match
     b = -np.cross(xs, xr @ A.T).reshape(-1)
@@ -92,7 +94,7 @@ def two_view_pencil(F: np.ndarray, x_ref: np.ndarray, x_sup: np.ndarray) -> tupl
 
 def transfer(H0: np.ndarray, e: np.ndarray, x: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Support pixels (N, 2) of reference pixels x (N, 2) at pencil parameters s (N,)."""
-    q = np.column_stack([x, np.ones(len(x))]) @ H0.T + s[:, None] * e[None]
+    q = to_homogeneous(x) @ H0.T + s[:, None] * e[None]
     with np.errstate(divide="ignore", invalid="ignore"):
         return q[:, :2] / q[:, 2:]
 
@@ -121,9 +123,9 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
                   grid_scale: float = 0.5, min_supports: int = 2) -> PencilSweep | None:
     """One sweep for a reference's two-view supports.
 
-    pairs: support -> (F, inliers_ref (N, 2), inliers_sup (N, 2), ref keypoint ids (N,) or None),
-    working px; size: the reference's (h, w). The anchor is the support with the most matches; the
-    others join it in order of the tracks they share with those already in (each fitted to the
+    pairs: support -> (F, inliers_ref (N, 2), inliers_sup (N, 2), track keys (N,): equal where two
+    supports matched the same reference keypoint, e.g. support.position_keys(inliers_ref)), working
+    px; size: the reference's (h, w). The anchor is the support with the most matches; the others join it in order of the tracks they share with those already in (each fitted to the
     already-aligned supports' tracks, align). The planes: uniform in the anchor's s over the range
     of every aligned support's tracks (2nd to 98th percentile, widened by half on each side), one
     sweep-grid pixel apart (grid_scale: the sweep grid / working size) at the 90th percentile of a
@@ -136,19 +138,19 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
         H0, e, s = two_view_pencil(F, np.asarray(x_r, float), np.asarray(x_s, float))
         # px per unit s at each match: the support point's speed along its line
         d = np.abs(transfer(H0, e, x_r, s + 1e-3) - transfer(H0, e, x_r, s)).max(axis=1) / 1e-3
-        pencils[j] = (H0, e, s, np.asarray(x_r, float), None if ids is None else np.asarray(ids), d)
+        pencils[j] = (H0, e, s, np.asarray(x_r, float), np.asarray(ids), d)
     if not pencils:
         return None
     left_out = {j: "too few matches for a pencil" for j in pairs if j not in pencils}
     anchor = max(pencils, key=lambda j: len(pencils[j][2]))
     coef = {anchor: np.array([1.0, 0.0, 0.0, 0.0])}
-    rho_at: dict[int, float] = {}            # reference keypoint -> the anchor's s there (mean over supports)
+    rho_at: dict[int, float] = {}            # track key -> the anchor's s there (mean over supports)
     n_at: dict[int, int] = {}
 
     def add_tracks(j):
         A, a0, a1, a2 = coef[j]
         H0, e, s, x_r, ids, _ = pencils[j]
-        if ids is None or abs(A) < 1e-12:
+        if abs(A) < 1e-12:
             return
         r = (s - (a0 * x_r[:, 0] + a1 * x_r[:, 1] + a2)) / A
         for k, v in zip(ids.tolist(), r.tolist()):
@@ -158,8 +160,7 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
     add_tracks(anchor)
     waiting = [j for j in pencils if j != anchor]
     while waiting:
-        shared = {j: [k for k in (pencils[j][4].tolist() if pencils[j][4] is not None else []) if k in rho_at]
-                  for j in waiting}
+        shared = {j: [k for k in pencils[j][4].tolist() if k in rho_at] for j in waiting}
         j = max(waiting, key=lambda j: len(shared[j]))
         waiting.remove(j)
         if len(shared[j]) < MIN_TRACKS:

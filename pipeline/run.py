@@ -37,12 +37,12 @@ from .refine import refine
 from .reconstruction import SetCameras, apply_reconstruction, ground_plane, reconstruct
 from .store import PairStore, light_of
 from .screen import screen_pairs, shared_features
-from .support import (PairGeometry, cap_supports, estimate_pair, not_compared, support_sets, triplet_check,
-                      uncertainty_gate)
+from .support import (PairGeometry, cap_supports, estimate_pair, not_compared, position_keys, support_sets,
+                      triplet_check, uncertainty_gate)
 from .peer import PeerPair, difference, dynamic_from_differences, plane_difference, plane_log_odds
 from .homography import aligned_support, reach_distance
 from .photometric import normalise_aligned
-from .pencil import MIN_TRACKS, shared_pencil
+from .pencil import shared_pencil
 from .sweep import (Fused, aligned_pair, depth_span_px, fuse, inverse_depths, pencil_pair, reference_planes,
                     sweep_pair)
 
@@ -130,7 +130,7 @@ class SetResult:
         if not p.sweep.same_spot_px > 0:
             return out
         for k, j in enumerate(supports):
-            kind = self.pair_results[(i, j)].sweep.kind
+            kind = self.sweep_kind(i, j)
             if kind == "aligned":
                 out[k] = True
             elif kind == "sweep" and self.cameras is not None and self.cameras.registered[i] \
@@ -782,11 +782,31 @@ def _sweepable(ij: tuple[int, int], g: PairGeometry, cameras: SetCameras | None,
     return g.source == "homography" and certain
 
 
-def _two_view_sweepable(g: PairGeometry, params: Params) -> bool:
-    """An epipolar pair that can join its reference's pencil of planes (pencil.py), asked for the
-    photos none of whose supports the set's cameras sweep (_sweepable)."""
-    return bool(params.sweep.enabled and params.sweep.two_view and not g.is_homography and g.F is not None
-                and len(g.inliers_ref) >= MIN_TRACKS)
+def _pencils(refs: list[int], supports: list[list[int]], pairs: dict, swept: set, photos, params: Params
+             ) -> dict[tuple[int, int], np.ndarray]:
+    """Photos without cameras: their epipolar supports swept over one pencil of planes (pencil.py).
+    Returns (i, j) -> (D, 3, 3) homographies, reference -> support working px, for the pairs swept so:
+    those of the photos in `refs` none of whose supports the set's cameras sweep (`swept`)."""
+    out = {}
+    if not (params.sweep.enabled and params.sweep.two_view):
+        return out
+    for i in refs:
+        cand = [j for j in supports[i] if not pairs[(i, j)].is_homography and pairs[(i, j)].F is not None]
+        if not cand or any((i, j) in swept for j in supports[i]):
+            continue
+        ps_i = shared_pencil({j: (pairs[(i, j)].F, pairs[(i, j)].inliers_ref, pairs[(i, j)].inliers_sup,
+                                  position_keys(pairs[(i, j)].inliers_ref)) for j in cand},
+                             photos[i].size, params.sweep.n_planes + params.sweep.ground_planes,
+                             grid_scale=params.sweep.scale, min_supports=1)
+        if ps_i is None:
+            continue
+        # one support alone has no other to check its F against (the shared tracks do that): it
+        # needs lines as certain as the cameras' sweep asks (recon_max_uncertainty_frac)
+        if len(ps_i.base) == 1 and not (pairs[(i, ps_i.anchor)].uncertainty_px
+                                        <= params.geometry.recon_max_uncertainty_frac * max(photos[i].size)):
+            continue
+        out.update({(i, j): ps_i.homographies(j) for j in ps_i.base})
+    return out
 
 
 def _digest_arrays(*arrays) -> str:
@@ -1006,24 +1026,7 @@ def detect_set(photo_set: PhotoSet, params: Params, cache: cache_mod.PairCache |
                 g_i = (cameras.R[i] @ ground[0], float(ground[0] @ cameras.C[i] + ground[1]))
             inv[i] = reference_planes(inverse_depths((cameras.depth_range[i][0], np.inf), params.sweep.n_planes),
                                       g_i, params.sweep.ground_planes)
-        # photos without cameras: their epipolar supports swept over one pencil of planes (pencil.py)
-        pencil = {}
-        for i in refs:
-            if params.sweep.enabled and params.sweep.two_view and not any((i, j) in swept for j in supports[i]):
-                cand = {j: pairs[(i, j)] for j in supports[i] if _two_view_sweepable(pairs[(i, j)], params)}
-                ps_i = shared_pencil({j: (g.F, g.inliers_ref, g.inliers_sup,
-                                          None if g.inlier_idx is None or len(g.inlier_idx) != len(g.inliers_ref)
-                                          else g.inlier_idx[:, 0]) for j, g in cand.items()},
-                                     photos[i].size, params.sweep.n_planes + params.sweep.ground_planes,
-                                     grid_scale=params.sweep.scale, min_supports=1) if cand else None
-                # one support alone has no other to check its F against (the shared tracks do that):
-                # it needs lines as certain as the cameras' sweep asks (recon_max_uncertainty_frac)
-                if ps_i is not None and len(ps_i.base) == 1 and not (
-                        pairs[(i, ps_i.anchor)].uncertainty_px
-                        <= params.geometry.recon_max_uncertainty_frac * max(photos[i].size)):
-                    ps_i = None
-                if ps_i is not None:
-                    pencil.update({(i, j): ps_i.homographies(j) for j in ps_i.base})
+        pencil = _pencils(refs, supports, pairs, swept, photos, params)
         pkey = {}
         for i, j in ordered:
             g = pairs[(i, j)]

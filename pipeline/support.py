@@ -220,7 +220,7 @@ def _homography_pair(i, j, F, f_inl, p_ref, p_sup, size_i, size_j, scale, hshare
                   inl, spread, hshare, scale=scale, H=H / H[2, 2], unc=parallax)
 
 
-def _position_keys(xy: np.ndarray) -> np.ndarray:
+def position_keys(xy: np.ndarray) -> np.ndarray:
     """(N, 2) float32 positions -> (N,) uint64 keys, equal exactly where the positions are."""
     return np.ascontiguousarray(xy, np.float32).view(np.uint64).ravel()
 
@@ -229,7 +229,7 @@ def _index_of(pairs, i: int, j: int, memo: dict) -> tuple[np.ndarray, np.ndarray
     """The (sorted keys, row) of pair (i, j)'s reference inliers by position; where a position
     repeats, its last row (memoised per pair: a triplet check asks for every pair many times)."""
     if (i, j) not in memo:
-        keys = _position_keys(pairs[(i, j)].inliers_ref)
+        keys = position_keys(pairs[(i, j)].inliers_ref)
         uniq, first_rev = np.unique(keys[::-1], return_index=True)
         memo[(i, j)] = (uniq, len(keys) - 1 - first_rev)
     return memo[(i, j)]
@@ -240,7 +240,7 @@ def _chained(pairs, i: int, j: int, k: int, min_tracks: int = 8, memo: dict | No
     (the keypoints of photo i matched, as inliers, in both (i, j) and (i, k)); None if too few."""
     g_ij, g_ik, g_jk = pairs[(i, j)], pairs[(i, k)], pairs[(j, k)]
     uniq, row = _index_of(pairs, i, j, {} if memo is None else memo)
-    keys = _position_keys(g_ik.inliers_ref)
+    keys = position_keys(g_ik.inliers_ref)
     at = np.minimum(np.searchsorted(uniq, keys), max(len(uniq) - 1, 0))
     found = (uniq[at] == keys) if len(uniq) else np.zeros(len(keys), bool)
     b = np.nonzero(found)[0]
