@@ -559,7 +559,8 @@ HELP = """
 - **depth cue** (`default` preset): what all supports say together at the one depth where they
   agree best (a plane sweep over the reconstruction's depth range; for a photo without a camera,
   over a pencil of planes its supports' F's share, whose hypotheses have no depth in metres); its
-  vote is added like a support's.
+  vote is added like a support's (at half weight where it rests on one pencil support alone, whose
+  F no other support checks).
 - **sum**: the running total of the votes. The formula under the table turns it into P_dynamic
   (for `default` with a scale and offset calibrated on rendered sets). Right of the dashed
   threshold line in the chart means *marked moving*.

@@ -168,6 +168,8 @@ class SweepParams:
     two_view: bool = False             # a photo without cameras: its epipolar supports swept over one pencil of
                                        # planes compatible with their F's (pencil.py)
     full_support: int = 1              # the cue counts in full where this many supports see the point
+    lone_pencil_weight: float = 1.0    # the cue of a photo whose pencil of planes has one support (nothing
+                                       # checks that support's F off its matches) counts this much
     min_seen_share: float = 0.0        # a plane counts where at least this share of the most supports seeing
                                        # the point at any plane see it (0: every plane, EVIDENCE_NOTES)
     lightness_mean: bool = True        # SSIM's luminance term on L (False: structure only on L)
@@ -285,8 +287,8 @@ class Params:
 
 
 # SweepParams fields of the per-reference fusion and calibration, not of a pair's cost volume
-SWEEP_FUSION = ("enabled", "full_support", "min_seen_share", "best_share", "min_agree", "two_supports_agree",
-                "same_spot_px", "smooth_p2", "smooth_p1", "smooth_paths", "smooth_unseen", "calib_slope",
+SWEEP_FUSION = ("enabled", "full_support", "lone_pencil_weight", "min_seen_share", "best_share", "min_agree",
+                "two_supports_agree", "same_spot_px", "smooth_p2", "smooth_p1", "smooth_paths", "smooth_unseen", "calib_slope",
                 "calib_centre", "weight")
 
 # GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
@@ -338,7 +340,8 @@ PRESETS: dict[str, Params] = {
                                   calib_scale=1.641, calib_offset=-0.4,
                                   plane_weight=0.6, plane_dynamic_cap=0.5, splat_step=2),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_px=8.0,
-                          smooth_p2=4.0, two_supports_agree=True, two_view=True),
+                          smooth_p2=4.0, two_supports_agree=True, two_view=True,
+                          lone_pencil_weight=0.5),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
     "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),

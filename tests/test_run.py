@@ -216,6 +216,15 @@ def test_photos_without_cameras_share_a_pencil_of_planes_and_explain_it(tmp_path
     line = epipolar_lines(res.pairs[(i, j)].F, np.array([[w / 2, h / 2]]))[0]
     for q in (*ev.strip, ev.depth_point):
         assert abs(line @ np.append(q, 1.0)) < 0.5
+    # a photo whose cue rests on its one pencil support (no other support's F answers to that pair's)
+    # counts it at sweep.lone_pencil_weight; the cue of a pencil of two or more is unchanged
+    full = params.with_settings(["sweep.lone_pencil_weight=1"])
+    lone = [i for i, sups in by_ref.items() if [j for j in res.supports[i] if res.is_swept(i, j)] == sups == [sups[0]]]
+    assert lone and 0 < params.sweep.lone_pencil_weight < 1
+    for i in by_ref:
+        weight = params.sweep.lone_pencil_weight if i in lone else 1.0
+        np.testing.assert_allclose(res.sweep_log_odds(i, res.supports[i]),
+                                   weight * res.sweep_log_odds(i, res.supports[i], full), atol=1e-6)
     # without the pencil the same photos have no depth cue
     off = detect_set(ps, params.with_settings(["sweep.two_view=false"]), PairCache(tmp_path), workers=1)
     assert all(off.sweep_kind(*ij) is None for ij in off.pair_results if off.pairs[ij].F is not None)
