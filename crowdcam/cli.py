@@ -110,7 +110,7 @@ def _check_max_supports(k: int | None) -> None:
 def _table_row(name: str, score) -> str:
     return (f"{name:<20} {score.n_images:>3} images  Jaccard opt. per image {score.mean_opt_image:.2f} ± "
             f"{score.std_opt_image:.2f}   opt. per set {score.mean_opt_set:.2f} ± {score.std_opt_set:.2f} "
-            f"(threshold {score.set_threshold:.3f})")
+            f"(threshold {score.set_threshold:.3f}); at {score.mask_threshold:g} {score.mean_at_mask:.2f}")
 
 
 # ----------------------------------------------------------------------------- commands
@@ -147,7 +147,7 @@ def cmd_detect(args) -> int:
     probs = {p.stem: to_original(d, p) for p, d in zip(photo_set.photos, res.dynamic)
              if d is not None and p.stem in gts}
     if probs:
-        score = score_set(probs, {k: gts[k] for k in probs})
+        score = score_set(probs, {k: gts[k] for k in probs}, mask_threshold=threshold)
         extra["evaluation"] = score.to_dict()
         rep.info(_table_row(photo_set.name, score))
     live = None
@@ -393,7 +393,8 @@ def cmd_eval(args) -> int:
         probs[im["stem"]], gts[im["stem"]] = np.load(mp), g
     if not probs:
         raise CliError(f"{gt_dir}: no ground-truth mask matches a map in {out}")
-    score = score_set(probs, gts)
+    mask_threshold = float(summary.get("threshold", 0.5))     # the one the run's masks were cut at
+    score = score_set(probs, gts, mask_threshold)
     fp = static_false_positive_rate(probs, gts, 0.5)
     print(_table_row(summary["set"], score))
     print(f"{'':<20} static pixels above 0.5: {fp:.1%}")

@@ -61,13 +61,17 @@ class SetScore:
     std_opt_set: float
     n_images: int
     n_with_motion: int
+    mask_threshold: float = 0.5
+    mean_at_mask: float = float("nan")     # at mask_threshold, the one a user's masks are cut at
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def score_set(probs: dict[str, np.ndarray], gts: dict[str, np.ndarray]) -> SetScore:
-    """Evaluate maps against ground truth for the stems present in both.
+def score_set(probs: dict[str, np.ndarray], gts: dict[str, np.ndarray], mask_threshold: float = 0.5) -> SetScore:
+    """Evaluate maps against ground truth for the stems present in both: the paper's Jaccard with
+    the threshold optimised per image and per set (§4.2), and the mean Jaccard at `mask_threshold`,
+    the fixed threshold the written masks use (no ground truth chooses it for a user).
 
     Images whose ground truth has no moving pixel are left out of the Jaccard means (there is no
     region to find; use `static_false_positive_rate` for them) unless no image has motion.
@@ -89,7 +93,8 @@ def score_set(probs: dict[str, np.ndarray], gts: dict[str, np.ndarray]) -> SetSc
                     set_threshold=float(THRESHOLDS[t_set]), per_image_at_set=at_set,
                     mean_opt_set=float(np.mean(list(at_set.values()))),
                     std_opt_set=float(np.std(list(at_set.values()))),
-                    n_images=len(stems), n_with_motion=len(motion))
+                    n_images=len(stems), n_with_motion=len(motion), mask_threshold=float(mask_threshold),
+                    mean_at_mask=float(np.mean([jaccard(probs[s] > mask_threshold, gts[s]) for s in use])))
 
 
 def static_false_positive_rate(probs: dict[str, np.ndarray], gts: dict[str, np.ndarray] | None = None,

@@ -36,6 +36,9 @@ def test_score_set_optimises_thresholds():
     assert sc.per_image_threshold["a"] >= 0.4 or sc.per_image_threshold["a"] < 0.9
     assert 0.2 <= sc.set_threshold < 0.4 and sc.mean_opt_set == 1.0
     assert sc.n_with_motion == 2
+    # at the masks' fixed threshold: "good" is right, "shifted" marks nothing
+    assert sc.mask_threshold == 0.5 and sc.mean_at_mask == 0.5
+    assert score_set({"a": good, "b": shifted}, {"a": gt, "b": gt}, mask_threshold=0.3).mean_at_mask == 1.0
 
 
 def test_static_false_positive_rate():
