@@ -288,8 +288,8 @@ class Params:
 
 # SweepParams fields of the per-reference fusion and calibration, not of a pair's cost volume
 SWEEP_FUSION = ("enabled", "full_support", "lone_pencil_weight", "min_seen_share", "best_share", "min_agree",
-                "two_supports_agree", "same_spot_px", "smooth_p2", "smooth_p1", "smooth_paths", "smooth_unseen", "calib_slope",
-                "calib_centre", "weight")
+                "two_supports_agree", "same_spot_px", "smooth_p2", "smooth_p1", "smooth_paths", "smooth_unseen",
+                "calib_slope", "calib_centre", "weight")
 
 # GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
 POST_GEOMETRY = ("two_view_max_uncertainty_frac", "recon_over_two_view")
