@@ -198,10 +198,10 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
 
     from .sweep import SCALE, UNSEEN
     i, j = pair.ref, pair.sup
-    sp_ = pair.sweep
     sups = supports if supports is not None else [k for k in res.supports[i] if (i, k) in res.pair_results]
     sw = [k for k in sups if res.is_swept(i, k)]
     f = res.fused(i, sw)
+    sp_ = res.sweep_pairs(i, sw)[sw.index(j)]           # on the fusion's grid
     gh, gw = f.cost.shape
     h, w = res.photo_set.photos[i].size
     gx = int(np.clip(round((xy[0] + 0.5) * gw / w - 0.5), 0, gw - 1))
@@ -243,7 +243,7 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
 def _fused_curve(res, i: int, sw: list[int], gy: int, gx: int) -> np.ndarray:
     """(D,) the fused cost of one grid pixel at every plane (sweep.fuse for one pixel)."""
     from .sweep import agree_count, fused_costs
-    pairs = [res.pair_results[(i, k)].sweep for k in sw]
+    pairs = res.sweep_pairs(i, sw)
     D = max(p.cost.shape[2] for p in pairs)
     costs = np.stack([np.broadcast_to(p.cost[gy, gx], (D,)) for p in pairs])       # (S, D) uint8
     sp = res.params.sweep

@@ -43,8 +43,8 @@ from .peer import PeerPair, difference, dynamic_from_differences, plane_differen
 from .homography import aligned_support, reach_distance
 from .photometric import normalise_aligned
 from .pencil import shared_pencil
-from .sweep import (Fused, aligned_pair, depth_span_px, fuse, inverse_depths, pencil_pair, reference_planes,
-                    sweep_pair)
+from .sweep import (Fused, SweepPair, aligned_pair, depth_span_px, fuse, inverse_depths, on_grid, pencil_pair,
+                    reference_planes, sweep_pair)
 
 Progress = Callable[[str, int, int], None]
 
@@ -114,8 +114,7 @@ class SetResult:
         if f is None:
             # the result is returned from this local: another thread (photos' maps are made in
             # threads, the inspector's tabs fuse in theirs) may clear the cache in between
-            pairs = [self.pair_results[(i, j)].sweep for j in sw]
-            f = fuse(pairs, sp, self.same_spot(i, sw, p))
+            f = fuse(self.sweep_pairs(i, sw), sp, self.same_spot(i, sw, p))
             if len(self._fused) > 32:
                 self._fused.clear()
             self._fused[key] = f
@@ -126,6 +125,14 @@ class SetResult:
         (pencil.py; no other support's shared tracks checked its F), or None."""
         over_pencil = [j for j in self.supports[i] if self.sweep_kind(i, j) == "two-view"]
         return over_pencil[0] if len(over_pencil) == 1 else None
+
+    def sweep_pairs(self, i: int, swept: list[int]) -> list[SweepPair]:
+        """The SweepPairs of photo i's `swept` supports on one grid, the coarsest of theirs: a direct
+        comparison made on a finer grid (`sweep.aligned_scale`) keeps it only where every swept support
+        is one; beside the planes' volumes it is sampled down to theirs (sweep.on_grid)."""
+        pairs = [self.pair_results[(i, j)].sweep for j in swept]
+        grid = min((p.cost.shape[:2] for p in pairs), key=lambda g: g[0] * g[1])
+        return [on_grid(p, grid) for p in pairs]
 
     def same_spot(self, i: int, supports, params: Params | None = None) -> np.ndarray:
         """(S,) bool for the swept `supports` of photo i: taken from i's own spot (a direct

@@ -24,6 +24,7 @@ does not see the point; planes are indexed from near to far (uniform in inverse 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -86,10 +87,21 @@ class Fused:
 
 
 # ----------------------------------------------------------------------------- geometry
-def sweep_size(size: tuple[int, int], sp: SweepParams) -> tuple[int, int]:
-    """(h, w) of the sweep grid for a working-resolution (h, w)."""
+def sweep_size(size: tuple[int, int], sp: SweepParams, scale: float | None = None) -> tuple[int, int]:
+    """(h, w) of the sweep grid for a working-resolution (h, w) (at `scale` instead of sp.scale)."""
     h, w = size
-    return max(8, int(round(h * sp.scale))), max(8, int(round(w * sp.scale)))
+    s = sp.scale if scale is None else scale
+    return max(8, int(round(h * s))), max(8, int(round(w * s)))
+
+
+def on_grid(pair: SweepPair, grid: tuple[int, int]) -> SweepPair:
+    """The pair with its cost volume at another grid (h, w): nearest samples, so that UNSEEN stays
+    UNSEEN and a cost is never a blend with it. A direct comparison made finer than the planes'
+    sweep (`aligned_scale`) is fused with them at theirs."""
+    if pair.cost.shape[:2] == tuple(grid):
+        return pair
+    cost = cv2.resize(pair.cost, (grid[1], grid[0]), interpolation=cv2.INTER_NEAREST)
+    return dataclasses.replace(pair, cost=cost.reshape(grid[0], grid[1], pair.cost.shape[2]))
 
 
 def grid_matrix(size: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
@@ -296,7 +308,8 @@ def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.nd
     rgb_sup_aligned (h, w, 3) uint8 is the support warped into the reference frame, valid (h, w)
     its coverage. One depth-independent cost map (D = 1)."""
     t0 = time.perf_counter()
-    g = sweep_size(rgb_ref.shape[:2], sp)
+    # one depth-independent map, not a volume: it can afford a finer grid than the planes' sweep
+    g = sweep_size(rgb_ref.shape[:2], sp, sp.aligned_scale or sp.scale)
     rs = ref_stats(lab_image(rgb_ref, g, sp), sp.window)
     sup = lab_image(rgb_sup_aligned, g, sp)
     vis = cv2.resize(valid.astype(np.float32), (g[1], g[0]), interpolation=cv2.INTER_AREA)

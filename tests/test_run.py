@@ -3,6 +3,7 @@
 import threading
 
 import numpy as np
+import pytest
 
 from conftest import SAMPLE_SETS
 
@@ -249,3 +250,47 @@ def test_a_lone_pencil_support_needs_certain_lines(tmp_path):
     for i in uncertain:
         assert res.sweep_kind(i, lone[i]) is None
     assert any(k == "two-view" for k in (res.sweep_kind(*ij) for ij in res.pair_results))
+
+
+def test_shots_from_one_spot_are_compared_at_the_working_resolution(tmp_path):
+    """`sweep.aligned_scale` 1 in default: a photo whose swept supports are all aligned pairs (shots
+    from its own spot) fuses their direct comparisons at the working resolution, not the planes'
+    half grid, and a pixel's explanation reads the cost of that grid."""
+    from pipeline.cache import PairCache
+    from pipeline.explain import explain_pixel
+    from pipeline.loading import load_set
+    from pipeline.params import get_preset
+    from pipeline.run import detect_set
+
+    ps = load_set(SAMPLE_SETS / "square_same_spot", 240)
+    params = get_preset("default").replace(max_side=240)
+    assert params.sweep.aligned_scale == 1.0
+    res = detect_set(ps, params, PairCache(tmp_path), workers=1)
+    i = next(k for k, sups in enumerate(res.supports) if sups)
+    sw = [j for j in res.supports[i] if res.sweep_kind(i, j) == "aligned"]
+    assert sw and sw == res.supports[i]
+    f = res.fused(i, sw)
+    h, w = ps.photos[i].size
+    assert f.cost.shape == (h, w)
+    ev = explain_pixel(res, i, sw[0], (w / 3, h / 2), sw)
+    gx, gy = int(round(w / 3)), int(round(h / 2))
+    assert ev.cost == pytest.approx(float(f.per_support[0, gy, gx]), nan_ok=True)
+    # the same photos at the planes' grid when the setting is off
+    half = detect_set(ps, params.with_settings(["sweep.aligned_scale=0"]), PairCache(tmp_path), workers=1)
+    assert half.fused(i, sw).cost.shape == (round(h * params.sweep.scale), round(w * params.sweep.scale))
+    # beside a planes' volume the direct comparison is fused at the planes' grid, and explained there
+    ps = load_set(SAMPLE_SETS / "low_collinear", 240)
+    res = detect_set(ps, params, PairCache(tmp_path), workers=1)
+    mixed = [(i, [j for j in sups if res.is_swept(i, j)]) for i, sups in enumerate(res.supports)]
+    i, sw = next((i, sw) for i, sw in mixed if {res.sweep_kind(i, j) for j in sw} >= {"aligned", "sweep"})
+    h, w = ps.photos[i].size
+    gh, gw = round(h * params.sweep.scale), round(w * params.sweep.scale)
+    f = res.fused(i, sw)
+    assert f.cost.shape == (gh, gw)
+    k = next(k for k, j in enumerate(sw) if res.sweep_kind(i, j) == "aligned")
+    ys, xs = np.nonzero(np.isfinite(f.per_support[k]))
+    gy, gx = ys[len(ys) // 2], xs[len(xs) // 2]
+    ev = explain_pixel(res, i, sw[k], ((gx + 0.5) * w / gw - 0.5, (gy + 0.5) * h / gh - 0.5), sw)
+    assert ev.cost == pytest.approx(float(f.per_support[k, gy, gx]))
+    assert ev.curve[0] == pytest.approx(ev.cost, abs=1e-6)             # its one cost, read on that grid
+    assert ev.fused_curve[f.plane[gy, gx]] == pytest.approx(float(f.cost[gy, gx]), abs=1e-6)

@@ -120,6 +120,27 @@ def test_direct_comparison_finds_a_pasted_object():
     assert cost[34:46, 44:56].mean() > 0.3 and cost[5:20, 5:30].mean() < 0.05
 
 
+def test_a_direct_comparison_on_a_finer_grid_is_fused_with_planes_at_theirs():
+    """`aligned_scale`: an aligned pair's one map at its own (finer) grid; beside a planes' volume
+    on the coarser grid it is sampled down by nearest samples, so UNSEEN stays UNSEEN."""
+    tex = texture(1)
+    a = render(camera(0.0), tex)
+    b = a.copy()
+    b[60:100, 80:120] = (20, 200, 20)
+    valid = np.ones(SIZE, np.float32)
+    valid[:, :40] = 0.0                                      # the support does not cover the left
+    fine = SW.aligned_pair(0, 1, a, b, valid, dataclasses.replace(SP, aligned_scale=1.0))
+    assert fine.cost.shape == (*SIZE, 1)
+    cost = fine.cost[:, :, 0].astype(float) / SW.SCALE
+    assert cost[70:90, 90:110].mean() > 0.3 and cost[10:40, 100:160].mean() < 0.05
+    coarse = SW.sweep_size(SIZE, SP)
+    down = SW.on_grid(fine, coarse)
+    assert down.cost.shape == (*coarse, 1) and down.kind == "aligned"
+    assert np.all(down.cost[:, :15] == SW.UNSEEN)            # nothing blended with UNSEEN
+    assert set(np.unique(down.cost)) <= set(np.unique(fine.cost))
+    assert SW.on_grid(down, coarse) is down
+
+
 def test_the_fused_probability_is_monotone_in_each_cue():
     from pipeline.aggregate import dynamic_from_log_odds, support_log_odds
     from pipeline.params import get_preset
