@@ -165,8 +165,9 @@ class SweepParams:
     direct_homography: bool = True     # homography pairs without cameras: SSIM of the aligned pixels as well,
     direct_max_parallax_frac: float = 0.005  # when their residual parallax is this small (3 px at 640)
     direct_reach_frac: float = 0.0     # and only inside the hull of the H inliers (and this x max side beyond)
-    aligned_scale: float = 0.0         # that direct comparison's grid / working resolution (0: `scale`); a photo
-                                       # whose swept supports are all such fuses them there (SetResult.sweep_pairs)
+    aligned_side: int = 0              # that direct comparison's grid: its longer side at most this (px; at least
+                                       # the planes' grid; 0: the planes' grid); a photo whose swept supports are
+                                       # all such fuses them there (SetResult.sweep_pairs)
     two_view: bool = False             # a photo without cameras: its epipolar supports swept over one pencil of
                                        # planes compatible with their F's (pencil.py)
     full_support: int = 1              # the cue counts in full where this many supports see the point
@@ -343,7 +344,7 @@ PRESETS: dict[str, Params] = {
                                   plane_weight=0.6, plane_dynamic_cap=0.5, splat_step=2),
         sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_px=8.0,
                           smooth_p2=4.0, two_supports_agree=True, two_view=True,
-                          lone_pencil_weight=0.5, aligned_scale=1.0),
+                          lone_pencil_weight=0.5, aligned_side=640),
     ),
     # Not a method of ours: the 2-D baseline a user would try first (peer.py), for comparison.
     "peer-homography": Params(preset="peer-homography", geometry=GeometryParams(peer_homography=True)),

@@ -128,7 +128,7 @@ class SetResult:
 
     def sweep_pairs(self, i: int, swept: list[int]) -> list[SweepPair]:
         """The SweepPairs of photo i's `swept` supports on one grid, the coarsest of theirs: a direct
-        comparison made on a finer grid (`sweep.aligned_scale`) keeps it only where every swept support
+        comparison made on a finer grid (`sweep.aligned_side`) keeps it only where every swept support
         is one; beside the planes' volumes it is sampled down to theirs (sweep.on_grid)."""
         pairs = [self.pair_results[(i, j)].sweep for j in swept]
         grid = min((p.cost.shape[:2] for p in pairs), key=lambda g: g[0] * g[1])

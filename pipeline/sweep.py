@@ -97,7 +97,7 @@ def sweep_size(size: tuple[int, int], sp: SweepParams, scale: float | None = Non
 def on_grid(pair: SweepPair, grid: tuple[int, int]) -> SweepPair:
     """The pair with its cost volume at another grid (h, w): nearest samples, so that UNSEEN stays
     UNSEEN and a cost is never a blend with it. A direct comparison made finer than the planes'
-    sweep (`aligned_scale`) is fused with them at theirs."""
+    sweep (`aligned_side`) is fused with them at theirs."""
     if pair.cost.shape[:2] == tuple(grid):
         return pair
     cost = cv2.resize(pair.cost, (grid[1], grid[0]), interpolation=cv2.INTER_NEAREST)
@@ -308,8 +308,11 @@ def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.nd
     rgb_sup_aligned (h, w, 3) uint8 is the support warped into the reference frame, valid (h, w)
     its coverage. One depth-independent cost map (D = 1)."""
     t0 = time.perf_counter()
-    # one depth-independent map, not a volume: it can afford a finer grid than the planes' sweep
-    g = sweep_size(rgb_ref.shape[:2], sp, sp.aligned_scale or sp.scale)
+    # one depth-independent map, not a volume: it can afford a finer grid than the planes' sweep; at most
+    # `aligned_side` px, so that its SSIM window keeps a footprint in the scene (7 px at 640: at 1280 the full
+    # resolution's 7 px windows read a hand's plain skin as static, mcvav_usb_hand)
+    scale = sp.scale if sp.aligned_side <= 0 else max(sp.scale, min(1.0, sp.aligned_side / max(rgb_ref.shape[:2])))
+    g = sweep_size(rgb_ref.shape[:2], sp, scale)
     rs = ref_stats(lab_image(rgb_ref, g, sp), sp.window)
     sup = lab_image(rgb_sup_aligned, g, sp)
     vis = cv2.resize(valid.astype(np.float32), (g[1], g[0]), interpolation=cv2.INTER_AREA)

@@ -253,9 +253,9 @@ def test_a_lone_pencil_support_needs_certain_lines(tmp_path):
 
 
 def test_shots_from_one_spot_are_compared_at_the_working_resolution(tmp_path):
-    """`sweep.aligned_scale` 1 in default: a photo whose swept supports are all aligned pairs (shots
-    from its own spot) fuses their direct comparisons at the working resolution, not the planes'
-    half grid, and a pixel's explanation reads the cost of that grid."""
+    """`sweep.aligned_side` 640 in default: a photo whose swept supports are all aligned pairs (shots
+    from its own spot) fuses their direct comparisons at the working resolution up to 640 px, not
+    the planes' half grid, and a pixel's explanation reads the cost of that grid."""
     from pipeline.cache import PairCache
     from pipeline.explain import explain_pixel
     from pipeline.loading import load_set
@@ -264,7 +264,7 @@ def test_shots_from_one_spot_are_compared_at_the_working_resolution(tmp_path):
 
     ps = load_set(SAMPLE_SETS / "square_same_spot", 240)
     params = get_preset("default").replace(max_side=240)
-    assert params.sweep.aligned_scale == 1.0
+    assert params.sweep.aligned_side == 640
     res = detect_set(ps, params, PairCache(tmp_path), workers=1)
     i = next(k for k, sups in enumerate(res.supports) if sups)
     sw = [j for j in res.supports[i] if res.sweep_kind(i, j) == "aligned"]
@@ -276,7 +276,7 @@ def test_shots_from_one_spot_are_compared_at_the_working_resolution(tmp_path):
     gx, gy = int(round(w / 3)), int(round(h / 2))
     assert ev.cost == pytest.approx(float(f.per_support[0, gy, gx]), nan_ok=True)
     # the same photos at the planes' grid when the setting is off
-    half = detect_set(ps, params.with_settings(["sweep.aligned_scale=0"]), PairCache(tmp_path), workers=1)
+    half = detect_set(ps, params.with_settings(["sweep.aligned_side=0"]), PairCache(tmp_path), workers=1)
     assert half.fused(i, sw).cost.shape == (round(h * params.sweep.scale), round(w * params.sweep.scale))
     # beside a planes' volume the direct comparison is fused at the planes' grid, and explained there
     ps = load_set(SAMPLE_SETS / "low_collinear", 240)

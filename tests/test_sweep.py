@@ -121,7 +121,7 @@ def test_direct_comparison_finds_a_pasted_object():
 
 
 def test_a_direct_comparison_on_a_finer_grid_is_fused_with_planes_at_theirs():
-    """`aligned_scale`: an aligned pair's one map at its own (finer) grid; beside a planes' volume
+    """`aligned_side`: an aligned pair's one map at its own (finer) grid; beside a planes' volume
     on the coarser grid it is sampled down by nearest samples, so UNSEEN stays UNSEEN."""
     tex = texture(1)
     a = render(camera(0.0), tex)
@@ -129,8 +129,10 @@ def test_a_direct_comparison_on_a_finer_grid_is_fused_with_planes_at_theirs():
     b[60:100, 80:120] = (20, 200, 20)
     valid = np.ones(SIZE, np.float32)
     valid[:, :40] = 0.0                                      # the support does not cover the left
-    fine = SW.aligned_pair(0, 1, a, b, valid, dataclasses.replace(SP, aligned_scale=1.0))
+    fine = SW.aligned_pair(0, 1, a, b, valid, dataclasses.replace(SP, aligned_side=max(SIZE)))
     assert fine.cost.shape == (*SIZE, 1)
+    capped = SW.aligned_pair(0, 1, a, b, valid, dataclasses.replace(SP, aligned_side=150))
+    assert capped.cost.shape == (120, 150, 1)                # its longer side at most aligned_side
     cost = fine.cost[:, :, 0].astype(float) / SW.SCALE
     assert cost[70:90, 90:110].mean() > 0.3 and cost[10:40, 100:160].mean() < 0.05
     coarse = SW.sweep_size(SIZE, SP)
