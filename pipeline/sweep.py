@@ -42,7 +42,8 @@ BAND_BYTES = 32 << 20    # fuse: the supports' costs of a band of rows, copied t
 @dataclass(frozen=True)
 class SweepPair:
     """Cost volume of reference `ref` against support `sup` (kind "sweep", D planes), or its
-    depth-independent cost map (kind "aligned", D = 1), at the sweep's resolution (h, w).
+    depth-independent cost map (kind "aligned", D = 1), at the sweep's resolution (h, w) (an
+    "aligned" map at its own, up to `aligned_side`; on_grid brings it to the planes').
 
     cost: (h, w, D) uint8, cost * 254 or UNSEEN (planes last: the fusion reads a pixel's planes
     contiguously); planes: (D, 4) float64 the planes n . X = d in the reference camera's frame
@@ -306,7 +307,8 @@ def aligned_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup_aligned: np.nd
                  sp: SweepParams) -> SweepPair:
     """Direct comparison for a support from the same spot (a homography pair without cameras):
     rgb_sup_aligned (h, w, 3) uint8 is the support warped into the reference frame, valid (h, w)
-    its coverage. One depth-independent cost map (D = 1)."""
+    its coverage. One depth-independent cost map (D = 1), on a grid whose longer side is at most
+    `aligned_side` (and no coarser than the planes' sweep)."""
     t0 = time.perf_counter()
     # one depth-independent map, not a volume: it can afford a finer grid than the planes' sweep; at most
     # `aligned_side` px, so that its SSIM window keeps a footprint in the scene (7 px at 640: at 1280 the full
