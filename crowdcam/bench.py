@@ -140,7 +140,7 @@ def run_bench(sets: list[Path], presets: list[str], max_side: int, workers: int 
         print(f"supports per photo: at most {max_supports}" if max_supports else "supports per photo: no cap")
     print("px: the working size (longer side) the set ran at; s/pair: cold seconds / ordered pairs, end to end; "
           "pair s: the pairs' stage alone / ordered pairs; J@0.5: the mean Jaccard of the masks as written, "
-          "at the fixed threshold 0.5")
+          "at their fixed threshold (aggregate.threshold, 0.5 unless changed with --param)")
     print(head)
     for s in sets:
         for preset in presets:
