@@ -21,8 +21,9 @@ are enough for a sweep all its supports share (a departure, `sweep.two_view`):
 What it does not know is where infinity lies (no focal length, no metric depth): the range swept
 is that of the tracks, widened by half on each side. A support that shares too few tracks with the
 others (directly or through another support) is left out of the sweep (it still speaks through
-its strips); a photo left with one support is swept only where that pair's lines are certain
-(run.detect_set: nothing else checks its F). Shapes: pixels are working-resolution (x, y);
+its strips); a photo left with one support is swept only where that pair's lines are certain,
+and its cue then counts at `sweep.lone_pencil_weight` (run._pencils, SetResult.sweep_log_odds:
+nothing else checks its F). Shapes: pixels are working-resolution (x, y);
 homographies map reference to support.
 """
 
@@ -147,13 +148,14 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
     rho_at: dict[int, float] = {}            # track key -> the anchor's s there (mean over supports)
     n_at: dict[int, int] = {}
 
-    def add_tracks(j):
+    def anchor_s(j):
+        """(N,) the anchor's s at support j's matches (its own s = A rho + a . x, inverted)."""
         A, a0, a1, a2 = coef[j]
-        H0, e, s, x_r, ids, _ = pencils[j]
-        if abs(A) < 1e-12:
-            return
-        r = (s - (a0 * x_r[:, 0] + a1 * x_r[:, 1] + a2)) / A
-        for k, v in zip(ids.tolist(), r.tolist()):
+        x_r = pencils[j][3]
+        return (pencils[j][2] - (a0 * x_r[:, 0] + a1 * x_r[:, 1] + a2)) / A
+
+    def add_tracks(j):
+        for k, v in zip(pencils[j][4].tolist(), anchor_s(j).tolist()):
             n = n_at.get(k, 0)
             rho_at[k] = (rho_at.get(k, 0.0) * n + v) / (n + 1)
             n_at[k] = n + 1
@@ -181,8 +183,7 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
     if len(coef) < min_supports:
         return None
     # the range, in the anchor's s, of every aligned support's matches
-    rhos = np.concatenate([(pencils[j][2] - (coef[j][1] * pencils[j][3][:, 0] + coef[j][2] * pencils[j][3][:, 1]
-                                             + coef[j][3])) / coef[j][0] for j in coef])
+    rhos = np.concatenate([anchor_s(j) for j in coef])
     lo, hi = np.percentile(rhos, [2, 98])
     lo, hi = lo - 0.5 * (hi - lo), hi + 0.5 * (hi - lo)
     # at least MIN_SPAN_PX either side of the middle (matches on one plane have no range of their own)

@@ -262,17 +262,16 @@ def sweep_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, cam
     planes = np.asarray(planes, float)
     if planes.ndim == 1:
         planes = reference_planes(planes)
+    cost = _cost_volume(rgb_ref, rgb_sup, plane_homographies(*cam_ref, *cam_sup, planes), sp)
+    return SweepPair(ref, sup, cost, planes, time.perf_counter() - t0)
+
+
+def _cost_volume(rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs: np.ndarray, sp: SweepParams) -> np.ndarray:
+    """The cost volume (h, w, D) uint8 (SweepPair.cost) of a support warped by Hs (D, 3, 3),
+    reference -> support working px (brought to the sweep grids here)."""
     g_ref, g_sup = sweep_size(rgb_ref.shape[:2], sp), sweep_size(rgb_sup.shape[:2], sp)
     A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
-    Hs = plane_homographies(*cam_ref, *cam_sup, planes)
-    Hs = A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None]
-    return SweepPair(ref, sup, _cost_volume(rgb_ref, rgb_sup, Hs, g_ref, g_sup, sp), planes, time.perf_counter() - t0)
-
-
-def _cost_volume(rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs: np.ndarray, g_ref: tuple[int, int],
-                 g_sup: tuple[int, int], sp: SweepParams) -> np.ndarray:
-    """The cost volume (h, w, D) uint8 (SweepPair.cost) of a support warped by Hs (D, 3, 3),
-    reference grid -> support grid."""
+    Hs = A_sup[None] @ np.asarray(Hs, np.float64) @ np.linalg.inv(A_ref)[None]
     rs = ref_stats(lab_image(rgb_ref, g_ref, sp), sp.window)
     sup_lab = lab_image(rgb_sup, g_sup, sp)
     if sp.window % 2 == 0 or sp.window >= min(g_ref):      # the kernel reflects a window once at the borders
@@ -296,10 +295,8 @@ def pencil_pair(ref: int, sup: int, rgb_ref: np.ndarray, rgb_sup: np.ndarray, Hs
     (pencil.py; kind "two-view", no planes in a camera frame): Hs (D, 3, 3) maps reference to
     support working px for each hypothesis. rgb_* as in sweep_pair."""
     t0 = time.perf_counter()
-    g_ref, g_sup = sweep_size(rgb_ref.shape[:2], sp), sweep_size(rgb_sup.shape[:2], sp)
-    A_ref, A_sup = grid_matrix(rgb_ref.shape[:2], g_ref), grid_matrix(rgb_sup.shape[:2], g_sup)
     Hs = np.asarray(Hs, np.float64)
-    cost = _cost_volume(rgb_ref, rgb_sup, A_sup[None] @ Hs @ np.linalg.inv(A_ref)[None], g_ref, g_sup, sp)
+    cost = _cost_volume(rgb_ref, rgb_sup, Hs, sp)
     return SweepPair(ref, sup, cost, np.zeros((0, 4)), time.perf_counter() - t0, kind="two-view", homographies=Hs)
 
 
