@@ -201,7 +201,8 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
     sups = supports if supports is not None else [k for k in res.supports[i] if (i, k) in res.pair_results]
     sw = [k for k in sups if res.is_swept(i, k)]
     f = res.fused(i, sw)
-    sp_ = res.sweep_pairs(i, sw)[sw.index(j)]           # on the fusion's grid
+    pairs = res.sweep_pairs(i, sw)                       # on the fusion's grid
+    sp_ = pairs[sw.index(j)]
     gh, gw = f.cost.shape
     h, w = res.photo_set.photos[i].size
     gx = int(np.clip(round((xy[0] + 0.5) * gw / w - 0.5), 0, gw - 1))
@@ -210,7 +211,7 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
     curve = np.where(raw == UNSEEN, np.nan, raw / SCALE).astype(np.float32)
     s = sw.index(j)
     cost = float(f.per_support[s, gy, gx])
-    fused_curve = _fused_curve(res, i, sw, gy, gx)
+    fused_curve = _fused_curve(res, i, sw, pairs, gy, gx)
     plane = int(f.plane[gy, gx])
     if sp_.kind == "two-view" and sp_.homographies is not None:
         # a pencil without cameras (pencil.py): the support's point at each hypothesis is H x, no depth
@@ -240,10 +241,10 @@ def _with_sweep(res, ev: PixelEvidence, pair, g, xy: np.ndarray, supports: list[
                                fused_curve=fused_curve)
 
 
-def _fused_curve(res, i: int, sw: list[int], gy: int, gx: int) -> np.ndarray:
-    """(D,) the fused cost of one grid pixel at every plane (sweep.fuse for one pixel)."""
+def _fused_curve(res, i: int, sw: list[int], pairs: list, gy: int, gx: int) -> np.ndarray:
+    """(D,) the fused cost of one grid pixel at every plane (sweep.fuse for one pixel); pairs: the
+    swept supports' SweepPairs on the fusion's grid (SetResult.sweep_pairs)."""
     from .sweep import agree_count, fused_costs
-    pairs = res.sweep_pairs(i, sw)
     D = max(p.cost.shape[2] for p in pairs)
     costs = np.stack([np.broadcast_to(p.cost[gy, gx], (D,)) for p in pairs])       # (S, D) uint8
     sp = res.params.sweep
