@@ -182,8 +182,9 @@ class SweepParams:
                                        # half is one look-alike; 2: tabletop 0.53 -> 0.68, facade 0.20 -> 0.11)
     two_supports_agree: bool = False   # a reference with only two swept supports averages both (min_agree 2 for
                                        # it alone; default: tabletop 0.53 -> 0.57, plaza 0.29 -> 0.31)
-    same_spot_px: float = 0.0          # supports whose match moves less than this over the depth range (working
-                                       # px; shots from the reference's spot) always count: 0 = none are pinned
+    same_spot_frac: float = 0.0        # supports whose match moves less than this x the reference's longer side
+                                       # over its depth range (8 px at 640; shots from its spot) always count: 0 =
+                                       # none are pinned. A fraction, as the other lengths: 16 px at 1280
     smooth_p2: float = 0.0             # > 0: the plane per pixel by semi-global regularisation of the fused
     smooth_p1: float = 0.3             # volume (jump penalty p2, next-plane penalty p1, in cost units), not the
     smooth_paths: int = 8              # best plane alone (EVIDENCE_NOTES point 9); 4 or 8 path directions
@@ -291,7 +292,7 @@ class Params:
 
 # SweepParams fields of the per-reference fusion and calibration, not of a pair's cost volume
 SWEEP_FUSION = ("enabled", "full_support", "lone_pencil_weight", "min_seen_share", "best_share", "min_agree",
-                "two_supports_agree", "same_spot_px", "smooth_p2", "smooth_p1", "smooth_paths", "smooth_unseen",
+                "two_supports_agree", "same_spot_frac", "smooth_p2", "smooth_p1", "smooth_paths", "smooth_unseen",
                 "calib_slope", "calib_centre", "weight")
 
 # GeometryParams fields applied to the cached geometry after it is loaded, not part of its key
@@ -342,7 +343,7 @@ PRESETS: dict[str, Params] = {
         aggregate=AggregateParams(no_evidence="neutral", refine_radius_frac=0.02, mean_terms=True,
                                   calib_scale=1.641, calib_offset=-0.4,
                                   plane_weight=0.6, plane_dynamic_cap=0.5, splat_step=2),
-        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_px=8.0,
+        sweep=SweepParams(enabled=True, blur=1.0, calib_centre=0.30, ground_planes=24, same_spot_frac=0.0125,
                           smooth_p2=4.0, two_supports_agree=True, two_view=True,
                           lone_pencil_weight=0.5, aligned_side=640),
     ),

@@ -136,19 +136,20 @@ class SetResult:
 
     def same_spot(self, i: int, supports, params: Params | None = None) -> np.ndarray:
         """(S,) bool for the swept `supports` of photo i: taken from i's own spot (a direct
-        comparison: an aligned pair, or cameras whose match moves less than `sweep.same_spot_px` over
-        the reference's depth range, sweep.depth_span_px). Such supports always count in the fusion."""
+        comparison: an aligned pair, or cameras whose match moves less than `sweep.same_spot_frac` of
+        i's longer side over its depth range, sweep.depth_span_px). Such supports always count in the fusion."""
         p = params or self.params
         out = np.zeros(len(supports), bool)
-        if not p.sweep.same_spot_px > 0:
+        if not p.sweep.same_spot_frac > 0:
             return out
+        limit = p.sweep.same_spot_frac * max(self.photo_set.photos[i].size)
         for k, j in enumerate(supports):
             kind = self.sweep_kind(i, j)
             if kind == "aligned":
                 out[k] = True
             elif kind == "sweep" and self.cameras is not None and self.cameras.registered[i] \
                     and self.cameras.registered[j]:
-                out[k] = self.depth_span(i, j) < p.sweep.same_spot_px
+                out[k] = self.depth_span(i, j) < limit
         return out
 
     def depth_span(self, i: int, j: int) -> float:
