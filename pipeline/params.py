@@ -182,9 +182,9 @@ class SweepParams:
                                        # half is one look-alike; 2: tabletop 0.53 -> 0.68, facade 0.20 -> 0.11)
     two_supports_agree: bool = False   # a reference with only two swept supports averages both (min_agree 2 for
                                        # it alone; default: tabletop 0.53 -> 0.57, plaza 0.29 -> 0.31)
-    same_spot_frac: float = 0.0        # supports whose match moves less than this x the reference's longer side
-                                       # over its depth range (8 px at 640; shots from its spot) always count: 0 =
-                                       # none are pinned. A fraction, as the other lengths: 16 px at 1280
+    same_spot_frac: float = 0.0        # supports whose match moves less than this x the working side over the
+                                       # reference's depth range (8 px at 640; shots from its spot) always count:
+                                       # 0 = none are pinned. A fraction, as the other lengths: 16 px at 1280
     smooth_p2: float = 0.0             # > 0: the plane per pixel by semi-global regularisation of the fused
     smooth_p1: float = 0.3             # volume (jump penalty p2, next-plane penalty p1, in cost units), not the
     smooth_paths: int = 8              # best plane alone (EVIDENCE_NOTES point 9); 4 or 8 path directions

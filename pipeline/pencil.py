@@ -37,7 +37,7 @@ from .geometry import epipoles, to_homogeneous
 
 MIN_TRACKS = 8          # reference keypoints matched in both supports, to align one support to another
 MAX_ALIGN_PX = 2.0      # the alignment's median residual, in support pixels, above which it is not trusted
-MIN_SPAN_PX = 16.0      # the least the sweep moves a match either way along its line, working px
+MIN_SPAN_FRAC = 0.025   # the least the sweep moves a match either way along its line, x the working side (16 px at 640)
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,8 @@ def align(s_k: np.ndarray, rho: np.ndarray, x: np.ndarray, px_per_s: np.ndarray)
 
 
 def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_planes: int = 16,
-                  grid_scale: float = 0.5, min_supports: int = 2) -> PencilSweep | None:
+                  grid_scale: float = 0.5, min_supports: int = 2, working_side: int | None = None
+                  ) -> PencilSweep | None:
     """One sweep for a reference's two-view supports.
 
     pairs: support -> (F, inliers_ref (N, 2), inliers_sup (N, 2), track keys (N,): equal where two
@@ -130,8 +131,10 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
     already-aligned supports' tracks, align). The planes: uniform in the anchor's s over the range
     of every aligned support's tracks (2nd to 98th percentile, widened by half on each side), one
     sweep-grid pixel apart (grid_scale: the sweep grid / working size) at the 90th percentile of a
-    grid of reference pixels in the support that moves most, min_planes to max_planes of them.
-    None when fewer than min_supports supports are aligned."""
+    grid of reference pixels in the support that moves most, min_planes to max_planes of them;
+    at least MIN_SPAN_FRAC x working_side (the set's, PhotoSet.working_side; default the
+    reference's longer side) either way of the middle. None when fewer than min_supports supports
+    are aligned."""
     pencils = {}
     for j, (F, x_r, x_s, ids) in pairs.items():
         if F is None or len(x_r) < MIN_TRACKS:
@@ -186,8 +189,10 @@ def shared_pencil(pairs: dict, size: tuple[int, int], max_planes: int, min_plane
     rhos = np.concatenate([anchor_s(j) for j in coef])
     lo, hi = np.percentile(rhos, [2, 98])
     lo, hi = lo - 0.5 * (hi - lo), hi + 0.5 * (hi - lo)
-    # at least MIN_SPAN_PX either side of the middle (matches on one plane have no range of their own)
-    half = MIN_SPAN_PX / max(float(np.median(pencils[anchor][5])), 1e-12)
+    # at least MIN_SPAN_FRAC of the working side either way of the middle (matches on one plane have no
+    # range of their own); a length that follows the working size, as the others do
+    min_span_px = MIN_SPAN_FRAC * (working_side if working_side else max(size))
+    half = min_span_px / max(float(np.median(pencils[anchor][5])), 1e-12)
     mid = 0.5 * (lo + hi)
     lo, hi = min(lo, mid - half), max(hi, mid + half)
     h, w = size

@@ -137,12 +137,13 @@ class SetResult:
     def same_spot(self, i: int, supports, params: Params | None = None) -> np.ndarray:
         """(S,) bool for the swept `supports` of photo i: taken from i's own spot (a direct
         comparison: an aligned pair, or cameras whose match moves less than `sweep.same_spot_frac` of
-        i's longer side over its depth range, sweep.depth_span_px). Such supports always count in the fusion."""
+        the working side over i's depth range, sweep.depth_span_px). Such supports always count in the
+        fusion."""
         p = params or self.params
         out = np.zeros(len(supports), bool)
         if not p.sweep.same_spot_frac > 0:
             return out
-        limit = p.sweep.same_spot_frac * max(self.photo_set.photos[i].size)
+        limit = p.sweep.same_spot_frac * p.max_side       # a length that follows the working size
         for k, j in enumerate(supports):
             kind = self.sweep_kind(i, j)
             if kind == "aligned":
@@ -816,7 +817,7 @@ def _pencils(refs: list[int], supports: list[list[int]], pairs: dict, swept: set
         ps_i = shared_pencil({j: (pairs[(i, j)].F, pairs[(i, j)].inliers_ref, pairs[(i, j)].inliers_sup,
                                   position_keys(pairs[(i, j)].inliers_ref)) for j in cand},
                              photos[i].size, params.sweep.n_planes + params.sweep.ground_planes,
-                             grid_scale=params.sweep.scale, min_supports=1)
+                             grid_scale=params.sweep.scale, min_supports=1, working_side=params.max_side)
         if ps_i is None:
             continue
         # one support alone has no other to check its F against (the shared tracks do that): it

@@ -298,7 +298,7 @@ def test_shots_from_one_spot_are_compared_at_the_working_resolution(tmp_path):
 
 def test_the_same_spot_limit_is_a_share_of_the_photo_side(tmp_path):
     """A swept support counts as taken from the reference's spot when its match moves less than
-    `sweep.same_spot_frac` of the reference's longer side over the depth range: the same scene at
+    `sweep.same_spot_frac` of the working side over the depth range: the same scene at
     any working size (it was 8 working px, which at 320 px took in supports 2.5 % of the side apart)."""
     from pipeline.cache import PairCache
     from pipeline.loading import load_set
@@ -309,7 +309,8 @@ def test_the_same_spot_limit_is_a_share_of_the_photo_side(tmp_path):
     res = detect_set(small, get_preset("default").replace(max_side=320), PairCache(tmp_path), workers=1)
     i = next(k for k in range(len(small.photos)) if any(res.sweep_kind(k, j) == "sweep" for j in res.supports[k]))
     sw = [j for j in res.supports[i] if res.sweep_kind(i, j) == "sweep"]
-    side = max(small.photos[i].size)
+    side = res.params.max_side
+    assert side == small.working_side == 320
     frac = res.params.sweep.same_spot_frac
     assert frac > 0
     for share, expected in [(0.8 * frac, True), (1.2 * frac, False)]:
