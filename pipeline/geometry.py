@@ -90,26 +90,43 @@ def convex_hull_share(pts: np.ndarray, size: tuple[int, int]) -> float:
 
 
 def clip_line(l: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
-    """Segment of line (a, b, c) inside an (h, w) image, (2, 2), or None."""
+    """Segment of line (a, b, c) inside an (h, w) image, (2, 2) float32, or None."""
+    seg, ok = clip_lines(np.asarray(l, np.float64)[None], size)
+    return seg[0] if ok[0] else None
+
+
+def clip_lines(lines: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Segments of lines (N, 3) inside an (h, w) image: ((N, 2, 2) float32, (N,) bool in view).
+
+    Each line's crossings of the borders x = 0, x = w - 1, y = 0, y = h - 1 (in that order) that lie
+    within the image; the segment joins the two farthest apart (the first such pair, row-major, as
+    np.argmax takes it). Fewer than two crossings: not in view (its segment is zeros)."""
     h, w = size
-    a, b, c = l
-    pts = []
-    for x in (0.0, w - 1.0):
-        if abs(b) > 1e-12:
-            y = -(a * x + c) / b
-            if 0 <= y <= h - 1:
-                pts.append((x, y))
-    for y in (0.0, h - 1.0):
-        if abs(a) > 1e-12:
-            x = -(b * y + c) / a
-            if 0 <= x <= w - 1:
-                pts.append((x, y))
-    if len(pts) < 2:
-        return None
-    pts = np.array(pts)
-    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
-    i, j = np.unravel_index(np.argmax(d), d.shape)
-    return pts[[i, j]].astype(np.float32)
+    lines = np.asarray(lines, np.float64).reshape(-1, 3)
+    a, b, c = lines[:, 0:1], lines[:, 1:2], lines[:, 2:3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xb = np.array([0.0, w - 1.0])[None]                                 # crossings of x = 0, w - 1
+        yb = -(a * xb + c) / b
+        ya = np.array([0.0, h - 1.0])[None]                                 # crossings of y = 0, h - 1
+        xa = -(b * ya + c) / a
+    pts = np.stack([np.concatenate([np.broadcast_to(xb, yb.shape), xa], 1),
+                    np.concatenate([yb, np.broadcast_to(ya, xa.shape)], 1)], -1)          # (N, 4, 2)
+    valid = np.concatenate([(np.abs(b) > 1e-12) & (yb >= 0) & (yb <= h - 1),
+                            (np.abs(a) > 1e-12) & (xa >= 0) & (xa <= w - 1)], 1)       # (N, 4)
+    # the candidates in order, valid ones first (as the scalar version appended them), then the
+    # farthest pair among them
+    order = np.argsort(~valid, axis=1, kind="stable")
+    pts = np.take_along_axis(pts, order[..., None], 1)
+    valid = np.take_along_axis(valid, order, 1)
+    pts = np.where(valid[..., None], pts, 0.0)                          # (the others may be inf or NaN)
+    d = np.linalg.norm(pts[:, :, None] - pts[:, None], axis=-1)
+    d = np.where(valid[:, :, None] & valid[:, None], d, -1.0).reshape(len(lines), 16)
+    k = np.argmax(d, axis=1)
+    i, j = k // 4, k % 4
+    rows = np.arange(len(lines))
+    seg = np.stack([pts[rows, i], pts[rows, j]], 1).astype(np.float32)
+    ok = valid.sum(axis=1) >= 2
+    return np.where(ok[:, None, None], seg, 0.0).astype(np.float32), ok
 
 
 def line_points(F: np.ndarray, size_ref: tuple[int, int], size_sup: tuple[int, int], grid: int = 12,
@@ -122,17 +139,13 @@ def line_points(F: np.ndarray, size_ref: tuple[int, int], size_sup: tuple[int, i
     h, w = size_ref
     gx, gy = np.meshgrid(np.linspace(0, w - 1, grid), np.linspace(0, h - 1, max(2, grid * h // max(w, 1))))
     x_ref = np.column_stack([gx.ravel(), gy.ravel()])
-    xs, ys = [], []
     t = (np.arange(per_line) + 0.5) / per_line
-    for x, l in zip(x_ref, epipolar_lines(F, x_ref)):
-        seg = clip_line(l, size_sup)
-        if seg is None:
-            continue
-        ys.append(seg[0][None] + t[:, None] * (seg[1] - seg[0])[None])
-        xs.append(np.repeat(x[None], per_line, axis=0))
-    if not xs:
+    seg, ok = clip_lines(epipolar_lines(F, x_ref), size_sup)
+    seg = seg[ok]
+    if not len(seg):
         return np.zeros((0, 2)), np.zeros((0, 2))
-    return np.concatenate(xs), np.concatenate(ys).astype(np.float64)
+    ys = seg[:, None, 0] + t[None, :, None] * (seg[:, None, 1] - seg[:, None, 0])        # (N, per_line, 2)
+    return np.repeat(x_ref[ok], per_line, axis=0), ys.reshape(-1, 2).astype(np.float64)
 
 
 def line_spread(F: np.ndarray, F_alt: np.ndarray, size_ref: tuple[int, int], size_sup: tuple[int, int],

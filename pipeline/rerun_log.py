@@ -50,7 +50,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .geometry import clip_line
+from .geometry import clip_lines
 
 BLUEPRINT_ENTITY = "/meta/blueprint"
 
@@ -197,8 +197,9 @@ def log_pair(res, rec, stems, i: int, j: int) -> None:
         rays = np.stack([st.epipole + t0[:, None] * d, st.epipole + t1[:, None] * d], axis=1).astype(np.float32)
         if len(rays):
             rec.log(f"{base}/ref/epilines", rr.LineStrips2D(rays, radii=0.6, colors=[255, 220, 0]), static=True)
-        lines = [seg for seg in (clip_line(l, size_s) for l in sg.bound_a[np.isin(sg.strip, fan0)]) if seg is not None]
-        if lines:
+        seg, in_view = clip_lines(sg.bound_a[np.isin(sg.strip, fan0)], size_s)
+        lines = seg[in_view]
+        if len(lines):
             rec.log(f"{base}/sup/epilines", rr.LineStrips2D(lines, radii=0.6, colors=[255, 220, 0]), static=True)
     if r.kind == "peer":
         return

@@ -162,3 +162,34 @@ def test_the_fast_triplet_closing_equals_the_one_by_position():
     want = float(np.median(symmetric_epipolar_distance(F, sup1[a], sup2[b])))
     assert _chained(pairs, 0, 1, 2) == pytest.approx(want, abs=1e-9)
     assert _chained(pairs, 0, 1, 2, min_tracks=len(a) + 1) is None
+
+
+def test_lines_are_clipped_to_the_image_border_to_border():
+    """clip_lines: each segment's ends lie on its line and on the image's border, as far apart as
+    the line's crossings allow; a line that misses the image is not in view."""
+    from pipeline.geometry import clip_line, clip_lines
+    h, w = 480, 640
+    rng = np.random.default_rng(3)
+    lines = rng.normal(size=(500, 3)) * [1.0, 1.0, 300.0]
+    lines = np.vstack([lines, [[1, 0, -10], [0, 1, -20], [1, -1, 0], [0, 0, 1], [1, 0, 700]]])   # vertical,
+    seg, ok = clip_lines(lines, (h, w))                          # horizontal, a corner, none, beside the image
+    assert not ok[-1] and not ok[-2] and ok[-5] and ok[-4] and ok[-3]
+    for l, s, o in zip(lines, seg, ok):
+        if not np.any(l[:2]):                                   # the line at infinity
+            assert not o
+            continue
+        unit = l / np.hypot(l[0], l[1])
+        ts = np.linspace(-2000, 2000, 40001)                    # the line, densely: its part inside the image
+        p0 = -unit[2] * unit[:2]
+        pts = p0[None] + ts[:, None] * np.array([-unit[1], unit[0]])[None]
+        inside = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
+        if not o:
+            assert inside.sum() <= 1
+            assert clip_line(l, (h, w)) is None
+            continue
+        assert np.all(np.abs(s @ unit[:2] + unit[2]) < 1e-3)                     # on the line
+        assert np.all((s >= -1e-3) & (s <= [w - 1 + 1e-3, h - 1 + 1e-3]))        # in the image
+        on_border = np.minimum.reduce([s[:, 0], w - 1 - s[:, 0], s[:, 1], h - 1 - s[:, 1]])
+        assert np.all(on_border < 1e-3)                                           # at its border
+        assert np.linalg.norm(s[1] - s[0]) >= np.ptp(ts[inside]) - 0.2          # the whole of the inside part
+        np.testing.assert_array_equal(clip_line(l, (h, w)), s)
