@@ -80,6 +80,7 @@ class SetResult:
     cache_misses: int = 0
     _fused: dict = field(default_factory=dict, repr=False, compare=False)
     _spans: dict = field(default_factory=dict, repr=False, compare=False)
+    _pencil_base: dict = field(default_factory=dict, repr=False, compare=False)
 
     def is_swept(self, i: int, j: int) -> bool:
         """The pair has a sweep (sweep.py) for photo i's depth cue: a cost volume over the set's
@@ -121,10 +122,19 @@ class SetResult:
         return f
 
     def lone_pencil(self, i: int) -> int | None:
-        """The support of photo i whose pair was swept over a pencil of planes made from it alone
-        (pencil.py; no other support's shared tracks checked its F), or None."""
-        over_pencil = [j for j in self.supports[i] if self.sweep_kind(i, j) == "two-view"]
-        return over_pencil[0] if len(over_pencil) == 1 else None
+        """The support of photo i whose pair is swept over a pencil of planes made from it alone
+        (pencil.py; no other support's shared tracks checked its F), or None. Decided from the
+        geometry, as the run planned the pencil (run._pencil_of), not from the pairs finished so
+        far: a partial result (the inspector's, while pairs arrive) counts a two-support pencil
+        whole from its first pair on."""
+        if i not in self._pencil_base:
+            photos = self.photo_set.photos
+            swept = {(i, j) for j in self.supports[i]
+                     if _sweepable((i, j), self.pairs[(i, j)], self.cameras, self.params, photos[i].size)}
+            ps_i = _pencil_of(i, self.supports[i], self.pairs, swept, photos, self.params)
+            self._pencil_base[i] = tuple(ps_i.base) if ps_i is not None else ()
+        base = self._pencil_base[i]
+        return base[0] if len(base) == 1 else None
 
     def sweep_pairs(self, i: int, swept: list[int]) -> list[SweepPair]:
         """The SweepPairs of photo i's `swept` supports on one grid, the coarsest of theirs: a direct
@@ -808,25 +818,34 @@ def _pencils(refs: list[int], supports: list[list[int]], pairs: dict, swept: set
     Returns (i, j) -> (D, 3, 3) homographies, reference -> support working px, for the pairs swept so:
     those of the photos in `refs` none of whose supports the set's cameras sweep (`swept`)."""
     out = {}
-    if not (params.sweep.enabled and params.sweep.two_view):
-        return out
     for i in refs:
-        cand = [j for j in supports[i] if not pairs[(i, j)].is_homography and pairs[(i, j)].F is not None]
-        if not cand or any((i, j) in swept for j in supports[i]):
-            continue
-        ps_i = shared_pencil({j: (pairs[(i, j)].F, pairs[(i, j)].inliers_ref, pairs[(i, j)].inliers_sup,
-                                  position_keys(pairs[(i, j)].inliers_ref)) for j in cand},
-                             photos[i].size, params.sweep.n_planes + params.sweep.ground_planes,
-                             grid_scale=params.sweep.scale, min_supports=1, working_side=params.max_side)
-        if ps_i is None:
-            continue
-        # one support alone has no other to check its F against (the shared tracks do that): it
-        # needs lines as certain as the cameras' sweep asks (recon_max_uncertainty_frac)
-        if len(ps_i.base) == 1 and not (pairs[(i, ps_i.anchor)].uncertainty_px
-                                        <= params.geometry.recon_max_uncertainty_frac * max(photos[i].size)):
-            continue
-        out.update({(i, j): ps_i.homographies(j) for j in ps_i.base})
+        ps_i = _pencil_of(i, supports[i], pairs, swept, photos, params)
+        if ps_i is not None:
+            out.update({(i, j): ps_i.homographies(j) for j in ps_i.base})
     return out
+
+
+def _pencil_of(i: int, supports_i: list[int], pairs: dict, swept: set, photos, params: Params):
+    """Photo i's pencil of planes (pencil.PencilSweep, its supports in .base), or None when the
+    preset has none, the set's cameras sweep one of its supports (`swept`: camera-swept pairs), or
+    its supports make none."""
+    if not (params.sweep.enabled and params.sweep.two_view):
+        return None
+    cand = [j for j in supports_i if not pairs[(i, j)].is_homography and pairs[(i, j)].F is not None]
+    if not cand or any((i, j) in swept for j in supports_i):
+        return None
+    ps_i = shared_pencil({j: (pairs[(i, j)].F, pairs[(i, j)].inliers_ref, pairs[(i, j)].inliers_sup,
+                              position_keys(pairs[(i, j)].inliers_ref)) for j in cand},
+                         photos[i].size, params.sweep.n_planes + params.sweep.ground_planes,
+                         grid_scale=params.sweep.scale, min_supports=1, working_side=params.max_side)
+    if ps_i is None:
+        return None
+    # one support alone has no other to check its F against (the shared tracks do that): it
+    # needs lines as certain as the cameras' sweep asks (recon_max_uncertainty_frac)
+    if len(ps_i.base) == 1 and not (pairs[(i, ps_i.anchor)].uncertainty_px
+                                    <= params.geometry.recon_max_uncertainty_frac * max(photos[i].size)):
+        return None
+    return ps_i
 
 
 def _digest_arrays(*arrays) -> str:

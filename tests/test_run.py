@@ -226,6 +226,15 @@ def test_photos_without_cameras_share_a_pencil_of_planes_and_explain_it(tmp_path
         weight = params.sweep.lone_pencil_weight if i in lone else 1.0
         np.testing.assert_allclose(res.sweep_log_odds(i, res.supports[i]),
                                    weight * res.sweep_log_odds(i, res.supports[i], full), atol=1e-6)
+    # a partial result (the inspector's, while pairs arrive) with one pair of a two-support pencil
+    # counts that support whole: whether a pencil is lone is the run's plan, not what has arrived
+    from pipeline.run import assemble
+    i, sups = next((i, sups) for i, sups in by_ref.items() if len(sups) == 2)
+    first = {ij: res.pair_results[ij] for ij in res.pair_results if ij != (i, sups[1])}
+    partial = assemble(ps, res.params, res.pairs, res.supports, first, cameras=res.cameras)
+    assert [j for j in res.supports[i] if partial.is_swept(i, j)] == [j for j in sups if j != sups[1]]
+    assert partial.lone_pencil(i) is None and res.lone_pencil(i) is None
+    assert all(partial.lone_pencil(k) == res.lone_pencil(k) for k in by_ref)
     # without the pencil the same photos have no depth cue
     off = detect_set(ps, params.with_settings(["sweep.two_view=false"]), PairCache(tmp_path), workers=1)
     assert all(off.sweep_kind(*ij) is None for ij in off.pair_results if off.pairs[ij].F is not None)
