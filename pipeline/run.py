@@ -671,14 +671,17 @@ class _Runner:
                 pass
         # Do not wait on the pool's own shutdown handshake after killing its workers (its
         # management thread may wait on a result that never comes); wait on the processes, and
-        # kill what a SIGTERM did not stop: no orphan outlives the run.
+        # kill what a SIGTERM did not stop: no orphan outlives the run. Then the management thread,
+        # taken before shutdown() drops the pool's reference to it: it closes its wake-up pipe as it
+        # ends, and the interpreter's exit writes to that pipe, so an exit racing its end printed
+        # "OSError: [Errno 9] Bad file descriptor" after a Ctrl-C (seen under load).
+        manager = getattr(self.pool, "_executor_manager_thread", None)
         self.pool.shutdown(wait=False, cancel_futures=True)
         for proc in procs:
             proc.join(timeout=5)
             if proc.is_alive():
                 proc.kill()
                 proc.join(timeout=5)
-        manager = getattr(self.pool, "_executor_manager_thread", None)
         if manager is not None:
             manager.join(timeout=5)
         self.pool = None

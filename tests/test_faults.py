@@ -198,3 +198,26 @@ def test_a_script_without_a_main_guard_ends_in_an_error_not_a_hang(tmp_path):
     # the line itself, wherever it is: the resource tracker (a process of its own) may warn after it
     died = [line for line in p.stderr.splitlines() if line.startswith("pipeline.run.WorkerDied:")]
     assert died and 'if __name__ == "__main__":' in died[-1]
+
+
+def test_a_stopped_pool_leaves_no_management_thread_for_the_exit_to_wake():
+    """After a stop (Ctrl-C, an error) the pool's management thread has ended before the run does:
+    the interpreter's exit writes to that thread's wake-up pipe, which the thread closes as it ends,
+    and the two racing printed "Bad file descriptor" after a Ctrl-C."""
+    import numpy as np
+
+    from pipeline.params import get_preset
+    from pipeline.run import _Runner
+
+    runner = _Runner([np.zeros((16, 16, 3), np.uint8)], get_preset("paper"), 2)
+    try:
+        runner._ensure_pool()
+        assert runner.pool.submit(os.getpid).result(timeout=120) != os.getpid()     # workers are up
+        manager = runner.pool._executor_manager_thread
+        assert manager is not None and manager.is_alive()
+        joins = []
+        join = manager.join
+        manager.join = lambda timeout=None: (joins.append(timeout), join(timeout))     # waited for, not left
+    finally:
+        runner.close(kill=True)
+    assert runner.pool is None and joins and not manager.is_alive()
