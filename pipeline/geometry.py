@@ -99,8 +99,8 @@ def clip_lines(lines: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np
     """Segments of lines (N, 3) inside an (h, w) image: ((N, 2, 2) float32, (N,) bool in view).
 
     Each line's crossings of the borders x = 0, x = w - 1, y = 0, y = h - 1 (in that order) that lie
-    within the image; the segment joins the two farthest apart (the first such pair, row-major, as
-    np.argmax takes it). Fewer than two crossings: not in view (its segment is zeros)."""
+    within the image; the segment joins the two farthest apart (the first such pair in row-major
+    order). Fewer than two crossings: not in view (its segment is zeros)."""
     h, w = size
     lines = np.asarray(lines, np.float64).reshape(-1, 3)
     a, b, c = lines[:, 0:1], lines[:, 1:2], lines[:, 2:3]
@@ -113,11 +113,8 @@ def clip_lines(lines: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np
                     np.concatenate([yb, np.broadcast_to(ya, xa.shape)], 1)], -1)          # (N, 4, 2)
     valid = np.concatenate([(np.abs(b) > 1e-12) & (yb >= 0) & (yb <= h - 1),
                             (np.abs(a) > 1e-12) & (xa >= 0) & (xa <= w - 1)], 1)       # (N, 4)
-    # the candidates in order, valid ones first (as the scalar version appended them), then the
-    # farthest pair among them
-    order = np.argsort(~valid, axis=1, kind="stable")
-    pts = np.take_along_axis(pts, order[..., None], 1)
-    valid = np.take_along_axis(valid, order, 1)
+    # the farthest pair of valid crossings; invalid ones at -1 leave the first maximum in row-major
+    # order where it is among the valid ones alone
     pts = np.where(valid[..., None], pts, 0.0)                          # (the others may be inf or NaN)
     d = np.linalg.norm(pts[:, :, None] - pts[:, None], axis=-1)
     d = np.where(valid[:, :, None] & valid[:, None], d, -1.0).reshape(len(lines), 16)
