@@ -86,12 +86,22 @@ def canvas_shot(page, path):
     return page.locator("canvas").first.screenshot(path=str(path))
 
 
-def new_canvas_shot(page, path, before: bytes) -> bytes:
+def new_canvas_shot(page, path, before: bytes, tab=None) -> bytes:
     """The canvas once it shows a picture other than `before`: the server has published the new
-    picture when the tab is settled, but the browser still receives, decodes and draws it."""
+    picture when the tab is settled, but the browser still receives, decodes and draws it.
+    On a timeout the whole page and the picture the server last published are kept beside `path`."""
     deadline = time.time() + 60
     while (shot := canvas_shot(page, path)) == before:
-        assert time.time() < deadline, "timed out waiting for the new picture"
+        if time.time() > deadline:
+            page.screenshot(path=str(path.with_name(path.stem + "_page.png")))
+            if tab is not None:
+                import cv2
+                cv2.imwrite(str(path.with_name(path.stem + "_server.png")), tab.scene_img.image[..., ::-1])
+            lost = page.evaluate("() => Array.from(document.querySelectorAll('canvas')).filter(c => c.width > 0)"
+                                 ".map(c => { const g = c.getContext('webgl2') || c.getContext('webgl');"
+                                 " return g ? g.isContextLost() : null; })")
+            raise AssertionError(f"timed out waiting for the new picture ({path.name}); WebGL context lost: {lost}; "
+                                 f"last events: {tab.events[-12:] if tab is not None else '?'}")
         time.sleep(0.1)
     return shot
 
@@ -147,7 +157,7 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     page.get_by_role("option", name=stems[ref], exact=True).click()
     wait_event(tab, "ref", lambda v: v == stems[ref], after=n)
     settled(tab)
-    b = new_canvas_shot(page, shots / "2_reference.png", a)
+    b = new_canvas_shot(page, shots / "2_reference.png", a, tab)
 
     # 3. untick a support: the map is Eq. 3 over the others, and the count says so
     sups = snap.supports[ref]
@@ -159,14 +169,14 @@ def test_inspector_in_a_browser(app, browser, shots, tmp_path):
     want = snap.dynamic_prob(ref, [j for j in sups if j != off], tab.settings.params())
     np.testing.assert_allclose(tab.dyn, want, atol=1e-5)
     assert f"{len(sups) - 1} of {len(sups)} supports on" in tab.md_sup.content
-    c = new_canvas_shot(page, shots / "3_support_off.png", b)
+    c = new_canvas_shot(page, shots / "3_support_off.png", b, tab)
 
     # 4. the threshold, through its number box
     n = len(tab.events)
     set_number(page, tab.sl_thr, "0.3")
     wait_event(tab, "settings", lambda s: abs(s.threshold - 0.3) < 1e-9, after=n)
     settled(tab)
-    d = new_canvas_shot(page, shots / "4_threshold.png", c)
+    d = new_canvas_shot(page, shots / "4_threshold.png", c, tab)
     assert "Jaccard at 0.300" in tab.md_eval.content
     assert tab.score is not None and 0.0 <= tab.score.at_threshold <= tab.score.best <= 1.0
 
