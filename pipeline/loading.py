@@ -1,7 +1,7 @@
 """Load a photo set: a folder of images, or a folder holding `images/` and optionally `gt/`.
 
 Photos are decoded with EXIF orientation applied, converted to 8-bit RGB (grayscale, alpha and
-16-bit inputs are accepted) and resized so that their longer side is at most `max_side`.
+16-bit inputs are accepted; HEIF/HEIC, the iPhone's format, through pillow-heif) and resized so that their longer side is at most `max_side`.
 Maps are computed at that working resolution and returned at each photo's original size.
 """
 
@@ -17,7 +17,8 @@ import numpy as np
 
 from .params import DEFAULT_MAX_SIDE
 
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp"}
+HEIF_SUFFIXES = {".heic", ".heif"}   # iPhones' default: decoded through pillow-heif (libheif), not OpenCV
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp"} | HEIF_SUFFIXES
 MAX_PIXELS = 120_000_000          # refuse larger photos (a 6000x4000 phone photo is 24 MP)
 MAX_FILE_BYTES = 400 * 1024 * 1024
 MAX_PHOTOS = 200                  # a set beyond this is refused with a message (pairs grow with n^2)
@@ -26,6 +27,27 @@ MAX_LISTED_SKIPS = 10             # skipped files named one by one; beyond, one 
 
 class InputError(Exception):
     """A problem with the user's input, reported as one line naming the file."""
+
+
+def _pil_image():
+    """PIL's Image module, able to open HEIF/HEIC files too (pillow-heif's opener, registered once;
+    it applies the file's rotation and mirroring on decode and reads its EXIF)."""
+    from PIL import Image
+    try:
+        import pillow_heif
+        pillow_heif.register_heif_opener()
+    except ImportError:                 # an install without it: HEIC files are then reported unreadable
+        pass
+    return Image
+
+
+def _decode_heif(path: Path) -> np.ndarray | None:
+    """A HEIF/HEIC file as (H, W, 3) uint8 BGR (as OpenCV decodes), oriented; None when unreadable."""
+    try:
+        with _pil_image().open(path) as im:
+            return np.ascontiguousarray(np.asarray(im.convert("RGB"))[..., ::-1])
+    except Exception:
+        return None
 
 
 @dataclass(frozen=True)
@@ -101,7 +123,8 @@ def decode_photo(path: Path) -> np.ndarray:
     except OSError as e:
         raise InputError(f"{path}: cannot read ({e.strerror})") from None
     # IMREAD_ANYDEPTH keeps 16-bit; IMREAD_COLOR applies the EXIF orientation and drops alpha.
-    img = cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    img = _decode_heif(path) if path.suffix.lower() in HEIF_SUFFIXES else \
+        cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if img is None or img.size == 0:
         raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
     if img.shape[0] * img.shape[1] > MAX_PIXELS:
@@ -121,7 +144,7 @@ def _declared_size(path: Path) -> tuple[int, int] | None:
     try:
         import warnings
 
-        from PIL import Image
+        Image = _pil_image()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")           # PIL's own DecompressionBombWarning: we decide here
             Image.MAX_IMAGE_PIXELS = None
@@ -148,8 +171,7 @@ def exif_focal_35mm(path: Path) -> tuple[float | None, str | None]:
     """(35 mm-equivalent focal length in mm, None) from the photo's EXIF, or (None, problem) when
     the tag is present but unusable (0, absurd), or (None, None) when there is none."""
     try:
-        from PIL import Image
-        with Image.open(path) as im:            # reads the header only, never the pixels
+        with _pil_image().open(path) as im:     # reads the header only, never the pixels
             value = im.getexif().get_ifd(0x8769).get(0xA405)
     except Exception:
         return None, None

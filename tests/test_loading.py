@@ -48,6 +48,28 @@ def test_formats_and_depths(tmp_path, kind):
         assert np.abs(ph.rgb.astype(int) - img[..., ::-1]).max() <= 1
 
 
+def test_iphone_heic_photos_load_upright_with_their_focal_length(tmp_path):
+    """HEIC, the iPhone's default format (pillow-heif): decoded to RGB, its orientation applied,
+    its EXIF 35 mm focal length read as for a JPEG."""
+    import pillow_heif
+    from PIL import Image
+    pillow_heif.register_heif_opener()
+    rgb = np.ascontiguousarray(_photo()[..., ::-1])                          # (60, 80) landscape
+    exif = Image.Exif()
+    exif[0x0112] = 6                                                         # shown turned 90 degrees
+    exif.get_ifd(0x8769)[0xA405] = 26                                        # 26 mm equivalent
+    Image.fromarray(rgb).save(tmp_path / "a.HEIC", exif=exif.tobytes(), quality=95)
+    ph = load_photo(tmp_path / "a.HEIC", 640)
+    assert ph.rgb.dtype == np.uint8 and ph.orig_size == (80, 60)             # portrait, as the phone showed it
+    err = [np.abs(ph.rgb.astype(int) - np.rot90(rgb, k)).mean() for k in (-1, 1)]
+    assert err[0] < 15 and err[0] < 0.5 * err[1]                               # turned clockwise (lossy HEVC)
+    assert ph.focal_prior_px == pytest.approx(26 / 43.27 * 100.0, rel=1e-6)  # the diagonal of 60 x 80 is 100
+    (tmp_path / "b.heic").write_bytes((tmp_path / "a.HEIC").read_bytes()[:200])
+    with pytest.raises(InputError) as e:
+        load_photo(tmp_path / "b.heic", 640)
+    assert "b.heic" in str(e.value) and "not a readable image" in str(e.value)
+
+
 def test_working_resolution_and_original_size(tmp_path):
     cv2.imwrite(str(tmp_path / "big.png"), _photo(300, 1000))
     ph = load_photo(tmp_path / "big.png", 250)
