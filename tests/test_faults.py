@@ -127,6 +127,29 @@ def _alive(pids: list[int]) -> list[int]:
     return alive
 
 
+@pytest.mark.parametrize("quiet", [False, True])
+def test_the_resource_trackers_exit_warnings_stay_off_our_stderr(tmp_path, quiet):
+    """A semaphore unlinked but never unregistered (a cleanup cut off by a stop) makes the resource
+    tracker warn at its exit, on the stderr it shares with us; `crowdcam` starts it quiet."""
+    script = tmp_path / "leak.py"
+    script.write_text(
+        "import os, sys, multiprocessing as mp\n"
+        "from _multiprocessing import sem_unlink\n"
+        "from crowdcam import cli\n"
+        "if __name__ == '__main__':\n"
+        f"    if {quiet}: cli.quiet_resource_tracker()\n"
+        "    lock = mp.get_context('spawn').Lock()\n"
+        "    sem_unlink(lock._semlock.name)\n"
+        "    os._exit(0)\n")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60,
+                       cwd=str(ROOT))
+    assert r.returncode == 0
+    if quiet:
+        assert r.stderr == ""
+    else:
+        assert "resource_tracker" in r.stderr and "No such file or directory" in r.stderr
+
+
 def test_sigterm_stops_like_ctrl_c(tmp_path, order):
     """A `kill` (SIGTERM) stops the run as Ctrl-C does: one line, exit 143, no orphan worker,
     no output; before, the main process died at once and its workers stayed, idle."""
