@@ -1,12 +1,14 @@
 """Load a photo set: a folder of images, or a folder holding `images/` and optionally `gt/`.
 
 Photos are decoded with EXIF orientation applied, converted to 8-bit RGB (grayscale, alpha and
-16-bit inputs are accepted; HEIF/HEIC, the iPhone's format, through pillow-heif) and resized so that their longer side is at most `max_side`.
+16-bit inputs are accepted; HEIF/HEIC, the iPhone's format, through pillow-heif) and resized so
+that their longer side is at most `max_side`.
 Maps are computed at that working resolution and returned at each photo's original size.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from dataclasses import dataclass
@@ -29,9 +31,10 @@ class InputError(Exception):
     """A problem with the user's input, reported as one line naming the file."""
 
 
+@functools.cache
 def _pil_image():
-    """PIL's Image module, able to open HEIF/HEIC files too (pillow-heif's opener, registered once;
-    it applies the file's rotation and mirroring on decode and reads its EXIF)."""
+    """PIL's Image module, able to open HEIF/HEIC files too (pillow-heif's opener, registered on the
+    first call; it applies the file's rotation and mirroring on decode and reads its EXIF)."""
     from PIL import Image
     try:
         import pillow_heif
