@@ -62,7 +62,7 @@ def test_iphone_heic_photos_load_upright_with_their_focal_length(tmp_path):
     ph = load_photo(tmp_path / "a.HEIC", 640)
     assert ph.rgb.dtype == np.uint8 and ph.orig_size == (80, 60)             # portrait, as the phone showed it
     err = [np.abs(ph.rgb.astype(int) - np.rot90(rgb, k)).mean() for k in (-1, 1)]
-    assert err[0] < 15 and err[0] < 0.5 * err[1]                               # turned clockwise (lossy HEVC)
+    assert err[0] < 15 and err[0] < 0.5 * err[1]                             # turned clockwise (lossy HEVC)
     assert ph.focal_prior_px == pytest.approx(26 / 43.27 * 100.0, rel=1e-6)  # the diagonal of 60 x 80 is 100
     (tmp_path / "b.heic").write_bytes((tmp_path / "a.HEIC").read_bytes()[:200])
     with pytest.raises(InputError) as e:
