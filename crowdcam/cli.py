@@ -51,8 +51,10 @@ class Reporter:
         if stage != self._stage:
             self.close()
             self._stage = stage
+            # initial: what was already done when the stage's first report came (from the cache, at
+            # once) counts in no rate; its first item had shown "76260 img/s"
             self._bar = tqdm(total=total, desc=f"{stage:>9}", unit={"features": "img", "screen": "set", "cameras": "step", "maps": "img"}.get(stage, "pair"),
-                             file=sys.stderr, leave=False, dynamic_ncols=True)
+                             file=sys.stderr, leave=False, dynamic_ncols=True, initial=done)
         self._bar.n = done
         self._bar.refresh()
         if done >= total:
