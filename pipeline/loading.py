@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,10 +45,11 @@ def _pil_image():
     return Image
 
 
-def _decode_heif(path: Path) -> np.ndarray | None:
-    """A HEIF/HEIC file as (H, W, 3) uint8 BGR (as OpenCV decodes), oriented; None when unreadable."""
+def _decode_heif(data: np.ndarray) -> np.ndarray | None:
+    """A HEIF/HEIC file's bytes (uint8) as (H, W, 3) uint8 BGR (as OpenCV decodes), oriented; None
+    when unreadable."""
     try:
-        with _pil_image().open(path) as im:
+        with _pil_image().open(io.BytesIO(data)) as im:
             return np.ascontiguousarray(np.asarray(im.convert("RGB"))[..., ::-1])
     except Exception:
         return None
@@ -126,7 +128,7 @@ def decode_photo(path: Path) -> np.ndarray:
     except OSError as e:
         raise InputError(f"{path}: cannot read ({e.strerror})") from None
     # IMREAD_ANYDEPTH keeps 16-bit; IMREAD_COLOR applies the EXIF orientation and drops alpha.
-    img = _decode_heif(path) if path.suffix.lower() in HEIF_SUFFIXES else \
+    img = _decode_heif(data) if path.suffix.lower() in HEIF_SUFFIXES else \
         cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if img is None or img.size == 0:
         raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
